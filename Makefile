@@ -1,0 +1,40 @@
+# VoxNeRO: two commands from a fresh clone to a result.
+#   make demo   -> set up .venv (system libs, torch, package) and run the pipeline on an analytic scene
+#   make test   -> set up .venv and run the default test suite (< 10 min on 2 cores)
+PY      ?= python3
+VENV    ?= .venv
+VPY     := $(VENV)/bin/python
+TORCH   ?= torch==2.13.0
+STAMP   := $(VENV)/.voxnero-installed
+DEMO_OUT ?= runs/demo
+
+.PHONY: setup sysdeps demo test test-all lint clean
+
+setup: $(STAMP)
+
+# System libraries: Open3D needs libusb; headless rendering uses Mesa's software Vulkan.
+sysdeps:
+	@bash tools/install_sysdeps.sh
+
+$(STAMP): setup.cfg pyproject.toml tools/install_sysdeps.sh
+	@$(MAKE) --no-print-directory sysdeps
+	@test -x $(VPY) || $(PY) -m venv $(VENV)
+	@# torch first and explicitly: a bare 'torch' requirement would pull a multi-GB CUDA build.
+	@$(VPY) -c "import torch" 2>/dev/null || $(VPY) -m pip install -q $(TORCH)
+	$(VPY) -m pip install -q -e ".[test]"
+	@touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/voxnero demo --out $(DEMO_OUT)
+
+test: $(STAMP)
+	$(VPY) -m pytest -m "not slow" tests
+
+test-all: $(STAMP)
+	$(VPY) -m pytest tests
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check voxnero tests tools
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

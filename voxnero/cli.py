@@ -1,0 +1,84 @@
+"""The ``voxnero`` command line.
+
+Every command follows one calling convention::
+
+    voxnero <command> SCENE_OR_RUN --preset NAME --out DIR [key=value ...]
+
+Each command lives in its own module under :mod:`voxnero.commands` exposing ``NAME``, ``HELP``,
+``add_arguments(parser)`` and ``run(args) -> int``; this file only discovers and dispatches them.
+User errors (:class:`voxnero.errors.VoxneroError`) print one or two lines and exit with code 2;
+``--debug`` shows the traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from voxnero.errors import VoxneroError
+
+COMMANDS = ["synth", "shape", "material", "reconstruct", "relight", "eval", "view", "info",
+            "batch", "demo"]
+"""Command modules, in the order ``--help`` lists them."""
+
+
+def add_common(parser: argparse.ArgumentParser, target_help: str, default_preset: str = "standard",
+               out_required: bool = True) -> None:
+    """Add the shared arguments: TARGET, ``--preset``, ``--out``, ``--device`` and overrides."""
+    parser.add_argument("target", metavar="SCENE_OR_RUN", help=target_help)
+    parser.add_argument("--preset", default=default_preset,
+                        help=f"preset name in configs/ or a YAML path (default: {default_preset})")
+    parser.add_argument("--out", required=out_required, help="output folder")
+    parser.add_argument("--device", default="auto", help="auto (CUDA if available), cpu or cuda")
+    parser.add_argument("overrides", nargs="*", metavar="key=value",
+                        help="config overrides, e.g. iters=2000 grid.res=96")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with one sub-parser per command module."""
+    parser = argparse.ArgumentParser(
+        prog="voxnero",
+        description="Posed photos of a shiny object -> relightable mesh, BRDF and environment "
+                    "light (explicit-voxel NeRO).",
+        epilog="Every command: voxnero <command> SCENE_OR_RUN --preset NAME --out DIR "
+               "[key=value ...]. Run 'voxnero <command> --help' for details.")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    sub = parser.add_subparsers(dest="command", metavar="<command>")
+    for name in COMMANDS:
+        try:
+            mod = importlib.import_module(f"voxnero.commands.{name}")
+        except ModuleNotFoundError as e:
+            if e.name != f"voxnero.commands.{name}":
+                raise
+            continue
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
+        p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                       help="show tracebacks of errors")
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``voxnero`` console script; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except VoxneroError as e:
+        if getattr(args, "debug", False):
+            raise
+        print(f"voxnero {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\nvoxnero {args.command}: interrupted (checkpoints, if any, are kept)",
+              file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

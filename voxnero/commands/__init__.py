@@ -1,0 +1,1 @@
+"""One module per ``voxnero`` sub-command (see :mod:`voxnero.cli`)."""

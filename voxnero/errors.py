@@ -1,0 +1,37 @@
+"""User-facing error types.
+
+Raise these for mistakes a user can fix (bad data, bad config). The CLI prints them in one or
+two lines without a traceback and exits with code 2. Messages name the file, what is wrong and
+what to do about it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class VoxneroError(Exception):
+    """Base class of errors caused by user input; printed without a traceback."""
+
+    def __init__(self, message: str, path: str | Path | None = None, fix: str | None = None):
+        self.path = None if path is None else Path(path)
+        self.fix = fix
+        parts = []
+        if path is not None:
+            parts.append(f"{path}: ")
+        parts.append(message)
+        if fix:
+            parts.append(f"\n  fix: {fix}")
+        super().__init__("".join(parts))
+
+
+class DataError(VoxneroError):
+    """Input data (images, poses, env maps, meshes) is missing, unreadable or inconsistent."""
+
+
+class ConfigError(VoxneroError):
+    """A preset, config file or key=value override is invalid."""
+
+
+class NotBuiltError(VoxneroError):
+    """A command whose stage is not implemented yet."""
