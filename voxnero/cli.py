@@ -52,7 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
             if e.name != f"voxnero.commands.{name}":
                 raise
             continue
-        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
+        p = sub.add_parser(mod.NAME, help=mod.HELP,
+                           description=getattr(mod, "DESCRIPTION", mod.HELP))
         p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                        help="show tracebacks of errors")
         mod.add_arguments(p)

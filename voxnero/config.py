@@ -12,6 +12,7 @@ with :func:`save_resolved` so that a run can be repeated exactly.
 from __future__ import annotations
 
 import dataclasses
+import types
 import typing
 from pathlib import Path
 from typing import Any, TypeVar
@@ -73,6 +74,11 @@ def parse_overrides(items: list[str], default_section: str | None,
             value = yaml.safe_load(raw) if raw.strip() else ""
         except yaml.YAMLError:
             value = raw
+        if isinstance(value, str):  # PyYAML (YAML 1.1) reads "1e-3" as a string
+            try:
+                value = float(value)
+            except ValueError:
+                pass
         parts = key.split(".")
         if default_section and parts[0] not in sections:
             parts = [default_section] + parts
@@ -103,7 +109,7 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
         if not isinstance(value, dict):
             raise ConfigError(f"{where} must be a mapping, got {value!r}")
         return from_dict(tp, value, where)
-    if origin is typing.Union or (origin is not None and str(origin) == "<class 'types.UnionType'>"):
+    if origin is typing.Union or origin is types.UnionType:
         if value is None and type(None) in args:
             return None
         errors = []
@@ -134,6 +140,11 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
     if tp is float:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             return float(value)
+        if isinstance(value, str):  # "1e-3" in a YAML file is a string for PyYAML
+            try:
+                return float(value)
+            except ValueError:
+                pass
         raise ConfigError(f"{where} must be a number, got {value!r}")
     if tp is int:
         if isinstance(value, int) and not isinstance(value, bool):
@@ -157,7 +168,8 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(data) - names
     if unknown:
-        raise ConfigError(f"unknown config key(s) {sorted(where + '.' + k if where else k for k in unknown)}",
+        keys = sorted(f"{where}.{k}" if where else k for k in unknown)
+        raise ConfigError(f"unknown config key(s) {keys}",
                           fix=f"valid keys{' under ' + where if where else ''}: {sorted(names)}")
     kwargs = {}
     for k, v in data.items():

@@ -1,4 +1,6 @@
-"""``voxnero material``: stage 2 (materials and lights on the fixed mesh). Not built yet (issue #4)."""
+"""``voxnero material``: stage 2 (materials and lights on the fixed mesh).
+
+Not built yet (issue #4)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,6 @@
-"""``voxnero reconstruct``: stage 1 then stage 2 with one preset. Not built yet (issues #7 and #4)."""
+"""``voxnero reconstruct``: stage 1 then stage 2 with one preset.
+
+Not built yet (issues #7 and #4)."""
 
 from __future__ import annotations
 

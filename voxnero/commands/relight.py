@@ -1,4 +1,6 @@
-"""``voxnero relight``: render an asset under another HDR environment map. Not built yet (issue #5)."""
+"""``voxnero relight``: render an asset under another HDR environment map.
+
+Not built yet (issue #5)."""
 
 from __future__ import annotations
 
