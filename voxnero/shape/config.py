@@ -1,0 +1,142 @@
+"""Configuration of stage 1 (``voxnero shape``): one small dataclass per component.
+
+Presets set these in the ``shape:`` section of ``configs/<preset>.yaml``; every key can be
+overridden on the command line (``grid.res=[48, 96]``, ``iters=3000``). Schedules are given as
+fractions of ``iters`` so that a preset scales with its length.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from voxnero.errors import ConfigError
+
+Switch = Literal["auto", "on", "off"]
+
+
+@dataclass
+class GridConfig:
+    """SDF and feature grids (unit frame, cube ``[-bound, bound]³``)."""
+
+    res: list[int] = field(default_factory=lambda: [48, 96])
+    """SDF grid resolutions, coarse to fine; the grid is trilinearly upsampled between them."""
+    upsample_at: list[float] = field(default_factory=lambda: [0.3])
+    """Fractions of ``iters`` at which to move to the next resolution (len(res) − 1 values)."""
+    bound: float = 1.05
+    init_radius: float = 0.95
+    """Radius of the initial SDF sphere: start around the object and carve inward."""
+    normals: Literal["analytic", "fd"] = "analytic"
+    fd_step: float = 1.0
+    """Central-difference half-step in voxels (normals: fd)."""
+    feat_res: int = 32
+    feat_dim: int = 8
+
+
+@dataclass
+class SamplingConfig:
+    """Ray batch and sample placement."""
+
+    rays: int = 4096
+    coarse: int = 32
+    """Stratified samples per ray of the no-grad coarse pass (also kept for rendering)."""
+    fine: int = 16
+    """Importance samples per ray drawn from the coarse NeuS weights."""
+    coarse_keep: int = 16
+    """How many evenly spaced coarse samples join the fine ones in the rendered set."""
+    radius: float = 1.0
+    """Bounding sphere of the object in the unit frame."""
+
+
+@dataclass
+class NeusConfig:
+    """Scheduled NeuS sharpness (1/length)."""
+
+    s_start: float = 30.0
+    s_end: float = 400.0
+    ramp: float = 0.6
+    """Fraction of ``iters`` over which s rises geometrically from s_start to s_end."""
+
+
+@dataclass
+class LightConfig:
+    """Light and material model switches."""
+
+    env_height: int = 64
+    """Height of the learnable equirectangular env map (width = 2 × height)."""
+    env_init: float = 0.5
+    """Initial env radiance (linear)."""
+    max_log_radiance: float = 4.0
+    indirect: Switch = "auto"
+    occlusion: Switch = "auto"
+    metallic: Switch = "auto"
+    background: Literal["auto", "distant", "alpha"] = "auto"
+    """distant: background pixel = env radiance along the ray; alpha: composite on the known
+    background colour of images with alpha."""
+    hidden: int = 32
+
+
+@dataclass
+class LossConfig:
+    """Loss weights."""
+
+    charbonnier_eps: float = 1e-3
+    color_space: Literal["srgb", "linear"] = "srgb"
+    eikonal: float = 0.1
+    laplacian: float = 1e-4
+    """Weight of the squared Laplacian of the SDF grid (mean over voxels, in voxel units)."""
+    occlusion: float = 1.0
+    occlusion_start: float = 0.2
+    """Fraction of ``iters`` after which occlusion targets are computed and used."""
+    occlusion_every: int = 200
+    """Steps between rebuilds of the Open3D surface for the occlusion targets."""
+
+
+@dataclass
+class OptimConfig:
+    """Adam learning rates per parameter group and decay."""
+
+    lr_sdf: float = 3e-3
+    lr_feat: float = 1e-2
+    lr_heads: float = 3e-3
+    lr_env: float = 3e-2
+    lr_light: float = 3e-3
+    decay: float = 0.1
+    """Final learning rate as a fraction of the initial (cosine decay over ``iters``)."""
+    warmup: int = 50
+
+
+@dataclass
+class ShapeConfig:
+    """Stage 1: SDF geometry (and rough materials/lights) from posed photos."""
+
+    iters: int = 1500
+    seed: int = 0
+    grid: GridConfig = field(default_factory=GridConfig)
+    sampling: SamplingConfig = field(default_factory=SamplingConfig)
+    neus: NeusConfig = field(default_factory=NeusConfig)
+    light: LightConfig = field(default_factory=LightConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    mesh_res: int = 256
+    """Resolution of the grid resampling used for the final marching cubes."""
+    ckpt_every_s: float = 60.0
+    preview_every: int = 500
+    eval_every_s: float = 60.0
+    """Seconds of training between Chamfer evaluations (scenes with GT only; 0 = never)."""
+    threads: int = 0
+    """torch CPU threads (0 = torch's default)."""
+
+    def validate(self) -> None:
+        """Check cross-field consistency; raise :class:`ConfigError` with the fix."""
+        g = self.grid
+        if len(g.upsample_at) != len(g.res) - 1:
+            raise ConfigError(f"shape.grid.upsample_at has {len(g.upsample_at)} values for "
+                              f"{len(g.res)} resolutions",
+                              fix="give one fraction of iters per resolution change")
+        if any(r < 4 for r in g.res):
+            raise ConfigError(f"shape.grid.res={g.res}: every resolution must be >= 4")
+        if self.sampling.coarse_keep > self.sampling.coarse:
+            raise ConfigError("shape.sampling.coarse_keep must be <= shape.sampling.coarse")
+        if self.iters < 1:
+            raise ConfigError("shape.iters must be >= 1")

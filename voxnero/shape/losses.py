@@ -1,0 +1,75 @@
+"""Stage-1 losses (pure functions): colour, eikonal, grid smoothness, occlusion."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from voxnero.io.color import linear_to_srgb
+
+
+def camera_response(pred: torch.Tensor, target: torch.Tensor, sat: float = 0.999
+                    ) -> torch.Tensor:
+    """Apply the camera's clipping only where the photo is saturated.
+
+    An 8-bit photo clips radiance at 1; a prediction above 1 where the target is saturated is
+    not an error. Clipping *everywhere* would kill the gradient of too-bright predictions of
+    unsaturated pixels, so clip only where ``target ≥ sat``.
+
+    Args:
+        pred: ``(N, 3)`` linear prediction; target: ``(N, 3)`` linear target in [0, 1].
+
+    Returns:
+        ``(N, 3)`` prediction, ``min(pred, 1)`` on saturated target channels, floored at 0.
+    """
+    clipped = torch.where(target >= sat, pred.clamp(max=1.0), pred)
+    return clipped.clamp(min=0.0)
+
+
+def charbonnier(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-3) -> torch.Tensor:
+    """Mean Charbonnier penalty ``sqrt((pred − target)² + eps²) − eps`` (a smooth L1)."""
+    return (torch.sqrt((pred - target) ** 2 + eps * eps) - eps).mean()
+
+
+def color_loss(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-3,
+               space: str = "srgb") -> torch.Tensor:
+    """Charbonnier colour loss between linear ``pred (N, 3)`` and linear ``target (N, 3)``,
+    compared in sRGB (perceptually even, as the photos were stored) or linear space."""
+    p = camera_response(pred, target)
+    if space == "srgb":
+        return charbonnier(linear_to_srgb(p), linear_to_srgb(target), eps)
+    return charbonnier(p, target, eps)
+
+
+def eikonal(grad: torch.Tensor) -> torch.Tensor:
+    """Mean ``(|∇f| − 1)²`` over gradients ``(M, 3)``."""
+    if grad.numel() == 0:
+        return grad.sum()
+    return ((grad.norm(dim=-1) - 1.0) ** 2).mean()
+
+
+def laplacian(grid: torch.Tensor, voxel: float) -> torch.Tensor:
+    """Mean squared discrete Laplacian of a ``(D, H, W)`` grid, interior voxels.
+
+    Values are divided by ``voxel`` first, so an exact SDF of a plane scores 0 and a sphere of
+    radius ρ scores ≈ (2·voxel/ρ)² (the Laplacian of |x| − ρ is 2/|x|).
+    """
+    g = grid / voxel
+    lap = (g[2:, 1:-1, 1:-1] + g[:-2, 1:-1, 1:-1] + g[1:-1, 2:, 1:-1] + g[1:-1, :-2, 1:-1]
+           + g[1:-1, 1:-1, 2:] + g[1:-1, 1:-1, :-2] - 6.0 * g[1:-1, 1:-1, 1:-1])
+    return (lap * lap).mean()
+
+
+def occlusion_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean L1 between predicted occlusion ``(N, 1)`` and ray-cast targets ``(N, 1)`` in {0, 1}."""
+    if pred.numel() == 0:
+        return pred.sum()
+    return F.l1_loss(pred, target)
+
+
+def psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
+    """PSNR (dB) of sRGB-encoded, clipped colours — what a viewer sees."""
+    p = linear_to_srgb(pred.detach().clamp(0, 1))
+    t = linear_to_srgb(target.clamp(0, 1))
+    mse = float(((p - t) ** 2).mean())
+    return float(-10.0 * torch.log10(torch.tensor(max(mse, 1e-12))))

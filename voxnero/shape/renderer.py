@@ -1,0 +1,163 @@
+"""Stage-1 model and ray renderer: samples → SDF grid → NeuS weights → deferred shading.
+
+Per ray (unit frame, ``o + t·d``):
+
+1. clip to the bounding sphere; a coarse no-grad pass of stratified samples gives NeuS weights and
+   fine samples are drawn where the weight is (:mod:`voxnero.shape.sampler`);
+2. the SDF grid returns value and analytic gradient at every sample; NeuS turns them into
+   compositing weights ``w`` (:mod:`voxnero.shape.neus`);
+3. **deferred shading**: the weight-averaged normal and position are shaded once per ray
+   (split-sum GGX, :mod:`voxnero.shape.shading`) instead of at every sample; gradients still reach
+   the SDF through ``w`` and the normals;
+4. ``pixel = acc·surface + (1 − acc)·background``, background = env radiance along the ray
+   (distant environment) or a known colour (images with alpha).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from voxnero.fields.grid import DenseGrid, SDFGrid
+from voxnero.fields.heads import MaterialHead
+from voxnero.fields.lights import EnvLight, IndirectLight, OcclusionNet
+from voxnero.render.brdf import safe_normalize
+from voxnero.shape.config import ShapeConfig
+from voxnero.shape.neus import alpha_from_samples, alpha_from_sdf_sequence, composite_weights
+from voxnero.shape.sampler import (interval_lengths, merge_sorted, ray_sphere, sample_pdf,
+                                   stratified)
+from voxnero.shape.shading import reflect, shade
+
+
+@dataclass
+class Switches:
+    """Resolved model switches (the config's "auto" decided)."""
+
+    indirect: bool = True
+    occlusion: bool = True
+    metallic: bool = True
+    background: str = "distant"
+    """"distant" or "alpha"."""
+    bg_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+
+
+class ShapeModel(nn.Module):
+    """All stage-1 parameters: SDF grid, feature grid, material head, lights.
+
+    Args:
+        cfg: the stage-1 config.
+        sw: resolved switches.
+        res: SDF grid resolution to build (defaults to the first of ``cfg.grid.res``).
+    """
+
+    def __init__(self, cfg: ShapeConfig, sw: Switches, res: int | None = None):
+        super().__init__()
+        g, lc = cfg.grid, cfg.light
+        self.sw = sw
+        self.sdf = SDFGrid(res or g.res[0], g.bound, g.init_radius)
+        self.feat = DenseGrid(g.feat_dim, g.feat_res, g.bound)
+        nn.init.normal_(self.feat.grid, std=0.1)
+        self.material = MaterialHead(g.feat_dim, lc.hidden, metallic=sw.metallic)
+        self.env = EnvLight(lc.env_height, lc.env_init, lc.max_log_radiance)
+        self.indirect = IndirectLight(g.feat_dim, lc.hidden) if sw.indirect else None
+        self.occlusion = OcclusionNet(g.feat_dim, lc.hidden) if sw.occlusion else None
+
+    def param_groups(self, cfg: ShapeConfig) -> list[dict]:
+        """Adam parameter groups with their learning rates (named for schedules)."""
+        o = cfg.optim
+        groups = [dict(name="sdf", params=[self.sdf.grid], lr=o.lr_sdf),
+                  dict(name="feat", params=[self.feat.grid], lr=o.lr_feat),
+                  dict(name="heads", params=list(self.material.parameters()), lr=o.lr_heads),
+                  dict(name="env", params=[self.env.log_radiance], lr=o.lr_env)]
+        light = []
+        for m in (self.indirect, self.occlusion):
+            if m is not None:
+                light += list(m.parameters())
+        if light:
+            groups.append(dict(name="light", params=light, lr=o.lr_light))
+        return groups
+
+
+def background(model: ShapeModel, dirs: torch.Tensor) -> torch.Tensor:
+    """Background radiance ``(R, 3)`` for unit ray directions ``(R, 3)``."""
+    if model.sw.background == "alpha":
+        return torch.tensor(model.sw.bg_color, device=dirs.device).expand(dirs.shape[0], 3)
+    return model.env.background(dirs)
+
+
+def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s: float,
+                cfg: ShapeConfig, train: bool = True, generator: torch.Generator | None = None
+                ) -> dict[str, torch.Tensor]:
+    """Render a batch of rays.
+
+    Args:
+        model: the stage-1 model (call ``model.env.prepare()`` once per step before).
+        origins: ``(R, 3)`` unit-frame ray origins; dirs: ``(R, 3)`` unit directions.
+        s: NeuS sharpness.
+        cfg: stage-1 config (sampling counts, normal mode).
+        train: jitter samples (else deterministic).
+        generator: RNG for the jitter.
+
+    Returns:
+        dict with ``rgb (R, 3)`` linear radiance, ``acc (R,)``, ``normal (R, 3)`` (zero where no
+        surface), ``hit (R,)`` bool, ``grad (M, 3)`` SDF gradients at all samples of hit rays (for
+        the eikonal loss) and, for the hit rays only (index ``hit``): ``x (H, 3)`` surface point,
+        ``refl (H, 3)``, ``occ (H, 1)`` predicted occlusion (if the net is on), ``acc_hit (H,)``.
+    """
+    sc = cfg.sampling
+    r = origins.shape[0]
+    dev = origins.device
+    near, far, hit = ray_sphere(origins, dirs, sc.radius)
+    bg = background(model, dirs)
+    rgb = bg.clone()
+    acc_all = torch.zeros(r, device=dev)
+    normal_all = torch.zeros(r, 3, device=dev)
+    out: dict[str, torch.Tensor] = {"hit": hit}
+    idx = torch.nonzero(hit).squeeze(-1)
+    if idx.numel() == 0:
+        out.update(rgb=rgb, acc=acc_all, normal=normal_all, grad=torch.zeros(0, 3, device=dev))
+        return out
+    o, d, n0, f0 = origins[idx], dirs[idx], near[idx], far[idx]
+    # 1. coarse pass (no autograd) and fine samples
+    with torch.no_grad():
+        zc = stratified(n0, f0, sc.coarse, jitter=train, generator=generator)
+        sdf_c = model.sdf.sdf((o[:, None] + zc[..., None] * d[:, None]).reshape(-1, 3))
+        w_c = composite_weights(alpha_from_sdf_sequence(sdf_c.view(zc.shape), zc, s))
+        zf = sample_pdf(zc, w_c, sc.fine, jitter=train, generator=generator)
+        step = max(sc.coarse // max(sc.coarse_keep, 1), 1)
+        z = merge_sorted(zc[:, ::step][:, :sc.coarse_keep], zf)
+    # 2. SDF + gradient at the samples, NeuS weights
+    pts = o[:, None] + z[..., None] * d[:, None]
+    sdf, grad = model.sdf.sdf_grad(pts.reshape(-1, 3), cfg.grid.normals, cfg.grid.fd_step)
+    sdf = sdf.view(z.shape)
+    grad3 = grad.view(*z.shape, 3)
+    cos = (grad3 * d[:, None]).sum(-1)
+    dists = interval_lengths(z, n0, f0)
+    w = composite_weights(alpha_from_samples(sdf, cos, dists, s))
+    acc = w.sum(-1)
+    # 3. deferred shading at the weight-averaged point / normal
+    n = safe_normalize((w[..., None] * safe_normalize(grad3)).sum(1))
+    x = (w[..., None] * pts).sum(1) / acc.clamp(min=1e-6)[:, None]
+    feat = model.feat(x)
+    albedo, metallic, rough = model.material(feat)
+    refl = reflect(d, n)
+    spec = model.env.specular(refl, rough)
+    occ = None
+    if model.occlusion is not None:
+        occ = model.occlusion(feat.detach(), refl.detach())
+        if model.indirect is not None:
+            ind = model.indirect(feat, refl, rough)
+            spec = (1.0 - occ) * spec + occ * ind
+    diff = model.env.diffuse(n)
+    surf = shade(n, d, albedo, metallic, rough, spec, diff)
+    rgb = rgb.index_put((idx,), acc[:, None] * surf + (1.0 - acc[:, None]) * bg[idx])
+    acc_all = acc_all.index_put((idx,), acc)
+    normal_all = normal_all.index_put((idx,), n)
+    out.update(rgb=rgb, acc=acc_all, normal=normal_all, grad=grad, x=x.detach(),
+               refl=refl.detach(), n_hit=n.detach(), acc_hit=acc.detach(), hit_idx=idx,
+               albedo=albedo, metallic=metallic, roughness=rough)
+    if occ is not None:
+        out["occ"] = occ
+    return out

@@ -1,0 +1,375 @@
+"""Stage-1 training loop: schedules, checkpoints with resume, progress, previews, logs, mesh.
+
+Orchestration only; the physics lives in :mod:`voxnero.shape.renderer` and the losses in
+:mod:`voxnero.shape.losses`. Outputs in the run folder:
+
+* ``mesh.ply`` — marching cubes of the final SDF grid, cleaned, in the scene's **input frame**;
+* ``checkpoint.pt`` — everything needed to resume (written periodically, on SIGINT/SIGTERM and
+  at the end); re-running the same command resumes from it;
+* ``log.jsonl`` — one JSON object per logged step: ``time`` (training seconds, excluding
+  evaluation), ``step``, ``loss``, ``psnr``, ``s``, ``res`` and, for scenes with ground truth,
+  ``chamfer`` entries (time-to-Chamfer curves);
+* ``preview/`` — normal map and colour PNGs of a training view at intervals;
+* ``config.yaml`` — the resolved config; ``shape.json`` — decisions (switches) and summary;
+* ``sdf.npz`` — the final SDF grid (unit frame) and ``envmap.exr`` — the learned env map.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from voxnero.cameras.rays import image_rays, pixel_rays, random_pixels
+from voxnero.config import to_dict
+from voxnero.fields.grid import resample
+from voxnero.shape import losses
+from voxnero.shape.config import ShapeConfig
+from voxnero.shape.neus import sharpness_schedule
+from voxnero.shape.occlusion import OcclusionTargets
+from voxnero.shape.renderer import ShapeModel, Switches, render_rays
+
+CKPT = "checkpoint.pt"
+
+
+def resolve_switches(cfg: ShapeConfig, scene: Any) -> Switches:
+    """Decide the "auto" switches from the data (logged and written to ``shape.json``).
+
+    * background: images that carried alpha were composited on a known colour → "alpha";
+      otherwise the environment is assumed distant → "distant".
+    * indirect / occlusion / metallic: "auto" means on (NeRO's full model); a later issue decides
+      them from the data.
+    """
+    lc = cfg.light
+    bg = lc.background
+    if bg == "auto":
+        bg = "alpha" if getattr(scene, "background", "") == "alpha" else "distant"
+    color = tuple(getattr(scene, "meta", {}).get("bg_color", (1.0, 1.0, 1.0)))
+    return Switches(indirect=lc.indirect != "off" and lc.occlusion != "off",
+                    occlusion=lc.occlusion != "off", metallic=lc.metallic != "off",
+                    background=bg, bg_color=color)
+
+
+class _Stop:
+    """SIGTERM → set a flag the loop checks (it saves and stops cleanly)."""
+
+    def __init__(self) -> None:
+        self.flag = False
+        self._old = None
+
+    def __enter__(self) -> _Stop:
+        try:
+            self._old = signal.signal(signal.SIGTERM, self._handler)
+        except ValueError:  # not the main thread
+            self._old = None
+        return self
+
+    def _handler(self, signum, frame) -> None:
+        self.flag = True
+
+    def __exit__(self, *exc) -> None:
+        if self._old is not None:
+            signal.signal(signal.SIGTERM, self._old)
+
+
+class ShapeTrainer:
+    """Train the stage-1 model on a scene's train split and write the run folder.
+
+    Args:
+        cfg: stage-1 config.
+        scene: a :class:`voxnero.data.scene.Scene` with a "train" split (and optionally "test"
+            with ``depth``/``masks`` for Chamfer logging).
+        out: run folder.
+        device: torch device.
+        progress: show a tqdm bar.
+        log: function for one-line messages.
+    """
+
+    def __init__(self, cfg: ShapeConfig, scene: Any, out: str | Path,
+                 device: torch.device | str = "cpu", progress: bool = True,
+                 log: Callable[[str], None] = print):
+        self.cfg = cfg
+        self.scene = scene
+        self.out = Path(out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.device = torch.device(device)
+        self.progress = progress
+        self.log = log
+        if cfg.threads > 0:
+            torch.set_num_threads(cfg.threads)
+        torch.manual_seed(cfg.seed)
+        self.gen = torch.Generator(device=self.device).manual_seed(cfg.seed)
+        train = scene.split("train")
+        self.cams = train.cameras.to(self.device) if hasattr(train.cameras, "to") \
+            else train.cameras
+        self.n_img, self.h, self.w = train.images.shape[0], train.images.shape[1], \
+            train.images.shape[2]
+        self.images = torch.as_tensor(train.images, dtype=torch.float32).reshape(-1, 3) \
+            .to(self.device)
+        self.sw = resolve_switches(cfg, scene)
+        self.model = ShapeModel(cfg, self.sw).to(self.device)
+        self.opt = torch.optim.Adam(self.model.param_groups(cfg), betas=(0.9, 0.99), eps=1e-15)
+        self.step = 0
+        self.train_time = 0.0
+        self.occ_targets: OcclusionTargets | None = None
+        self.eval_split = None
+        if "test" in getattr(scene, "splits", {}):
+            te = scene.split("test")
+            if te.depth is not None and te.masks is not None:
+                self.eval_split = te
+        self._last_eval = 0.0
+
+    # ------------------------------------------------------------------ schedules
+    def res_at(self, step: int) -> int:
+        """SDF grid resolution scheduled for ``step``."""
+        g = self.cfg.grid
+        k = sum(1 for f in g.upsample_at if step >= int(f * self.cfg.iters))
+        return g.res[k]
+
+    def sharpness(self, step: int) -> float:
+        """NeuS sharpness scheduled for ``step``."""
+        n = self.cfg.neus
+        return sharpness_schedule(step / max(self.cfg.iters * n.ramp, 1), n.s_start, n.s_end)
+
+    def lr_factor(self, step: int) -> float:
+        """Warm-up then cosine decay to ``optim.decay``."""
+        o = self.cfg.optim
+        warm = min(1.0, (step + 1) / max(o.warmup, 1))
+        f = min(step / max(self.cfg.iters, 1), 1.0)
+        return warm * (o.decay + (1 - o.decay) * 0.5 * (1 + math.cos(math.pi * f)))
+
+    # ------------------------------------------------------------------ grid resolution
+    def set_resolution(self, res: int) -> None:
+        """Resample the SDF grid to ``res`` and reset its optimiser state."""
+        old = self.model.sdf.grid
+        if old.shape[-1] == res:
+            return
+        self.model.sdf.upsample(res)
+        for group in self.opt.param_groups:
+            if group.get("name") == "sdf":
+                self.opt.state.pop(old, None)
+                group["params"] = [self.model.sdf.grid]
+        self.log(f"[shape] step {self.step}: SDF grid {old.shape[-1]}^3 -> {res}^3")
+
+    # ------------------------------------------------------------------ checkpoints
+    def save_checkpoint(self) -> Path:
+        """Atomically write ``checkpoint.pt``."""
+        path = self.out / CKPT
+        tmp = path.with_suffix(".tmp")
+        torch.save({"model": self.model.state_dict(), "opt": self.opt.state_dict(),
+                    "step": self.step, "train_time": self.train_time,
+                    "res": self.model.sdf.res, "gen": self.gen.get_state(),
+                    "config": to_dict(self.cfg), "switches": asdict(self.sw)}, tmp)
+        os.replace(tmp, path)
+        return path
+
+    def load_checkpoint(self) -> bool:
+        """Resume from ``checkpoint.pt`` if present; returns whether it did."""
+        path = self.out / CKPT
+        if not path.is_file():
+            return False
+        ck = torch.load(path, map_location=self.device, weights_only=False)
+        if ck["config"] != to_dict(self.cfg):
+            self.log("[shape] note: the config differs from the checkpoint's; resuming anyway")
+        self.set_resolution(int(ck["res"]))
+        self.model.load_state_dict(ck["model"])
+        self.opt = torch.optim.Adam(self.model.param_groups(self.cfg), betas=(0.9, 0.99),
+                                    eps=1e-15)
+        self.opt.load_state_dict(ck["opt"])
+        self.step = int(ck["step"])
+        self.train_time = float(ck["train_time"])
+        self.gen.set_state(ck["gen"])
+        self._last_eval = self.train_time
+        self.log(f"[shape] resumed from {path} at step {self.step} "
+                 f"({self.train_time:.0f} s trained)")
+        return True
+
+    # ------------------------------------------------------------------ one step
+    def train_step(self) -> dict[str, float]:
+        """One optimisation step; returns scalars for logging."""
+        cfg = self.cfg
+        res = self.res_at(self.step)
+        if res != self.model.sdf.res:
+            self.set_resolution(res)
+        s = self.sharpness(self.step)
+        lrf = self.lr_factor(self.step)
+        for g in self.opt.param_groups:
+            g["lr"] = g.setdefault("base_lr", g["lr"]) * lrf
+        cam, pix = random_pixels(cfg.sampling.rays, self.n_img, self.h, self.w,
+                                 generator=self.gen, device=self.device)
+        pi = pix.long()
+        target = self.images[(cam * self.h + pi[:, 1]) * self.w + pi[:, 0]]
+        o, d = pixel_rays(self.cams, cam, pix)
+        m = self.model
+        m.env.prepare()
+        out = render_rays(m, o, d, s, cfg, train=True, generator=self.gen)
+        lc = cfg.loss
+        l_col = losses.color_loss(out["rgb"], target, lc.charbonnier_eps, lc.color_space)
+        l_eik = losses.eikonal(out["grad"])
+        l_lap = losses.laplacian(m.sdf.grid[0], m.sdf.voxel) if lc.laplacian > 0 else 0.0
+        loss = l_col + lc.eikonal * l_eik + lc.laplacian * l_lap
+        l_occ = torch.zeros(())
+        if "occ" in out and self.step >= int(lc.occlusion_start * cfg.iters):
+            if self.occ_targets is None or self.step % lc.occlusion_every == 0:
+                self.occ_targets = self._build_occlusion()
+            if self.occ_targets is not None:
+                keep = out["acc_hit"] > 0.5
+                tgt = self.occ_targets(out["x"][keep], out["n_hit"][keep], out["refl"][keep])
+                l_occ = losses.occlusion_loss(out["occ"][keep], tgt)
+                loss = loss + lc.occlusion * l_occ
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt.step()
+        m.env.release()
+        return {"loss": float(loss), "color": float(l_col), "eik": float(l_eik),
+                "occ": float(l_occ), "psnr": losses.psnr(out["rgb"], target), "s": s,
+                "res": m.sdf.res}
+
+    # ------------------------------------------------------------------ surfaces
+    @torch.no_grad()
+    def extract(self, res: int | None = None, clean: bool = True):
+        """Marching cubes of the current SDF grid (resampled to ``res``), unit frame."""
+        from voxnero.mesh.cleanup import clean_mesh
+        from voxnero.mesh.extract import extract_mesh
+
+        g = self.model.sdf.grid.data
+        if res and res != g.shape[-1]:
+            g = resample(g, res)
+        mesh = extract_mesh(g[0].cpu(), self.model.sdf.bounds.cpu())
+        return clean_mesh(mesh) if clean else mesh
+
+    def _build_occlusion(self) -> OcclusionTargets | None:
+        try:
+            mesh = self.extract(None, clean=False)
+        except Exception as e:  # empty surface early on: no targets this time
+            self.log(f"[shape] occlusion targets skipped: {e}")
+            return None
+        return OcclusionTargets(mesh, offset=2.0 * self.model.sdf.voxel)
+
+    def evaluate(self) -> dict[str, float] | None:
+        """Chamfer of the current mesh at the test views (scenes with GT), input frame."""
+        if self.eval_split is None:
+            return None
+        from voxnero.eval.chamfer import chamfer_at_views
+
+        te = self.eval_split
+        try:
+            mesh = self.extract(self.cfg.mesh_res)
+        except Exception as e:
+            self.log(f"[shape] evaluation skipped: {e}")
+            return None
+        r = chamfer_at_views(mesh, te.cameras, te.depth, te.masks, norm=self.scene.norm)
+        return {k: float(v) for k, v in r.items()}
+
+    # ------------------------------------------------------------------ previews
+    @torch.no_grad()
+    def render_image(self, index: int = 0, downscale: int = 2, chunk: int = 8192
+                     ) -> dict[str, torch.Tensor]:
+        """Render a train view: ``rgb (H', W', 3)`` linear and ``normal (H', W', 3)``."""
+        o, d = image_rays(self.cams, index, downscale)
+        hh, ww = o.shape[:2]
+        o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+        s = self.sharpness(self.step)
+        self.model.env.prepare()
+        rgbs, nors = [], []
+        for i in range(0, o.shape[0], chunk):
+            out = render_rays(self.model, o[i:i + chunk], d[i:i + chunk], s, self.cfg,
+                              train=False)
+            rgbs.append(out["rgb"])
+            nors.append(out["normal"] * out["acc"][:, None])
+        self.model.env.release()
+        return {"rgb": torch.cat(rgbs).view(hh, ww, 3), "normal": torch.cat(nors).view(hh, ww, 3)}
+
+    def write_preview(self) -> None:
+        """Write ``preview/step_XXXXXX_{rgb,normal}.png`` for train view 0."""
+        from voxnero.io.images import save_linear_png, write_png
+
+        img = self.render_image(0)
+        p = self.out / "preview"
+        p.mkdir(exist_ok=True)
+        save_linear_png(p / f"step_{self.step:06d}_rgb.png", img["rgb"].cpu().numpy())
+        write_png(p / f"step_{self.step:06d}_normal.png",
+                  (img["normal"].cpu().numpy() * 0.5 + 0.5).clip(0, 1))
+
+    # ------------------------------------------------------------------ outputs
+    def write_outputs(self) -> Path:
+        """Final mesh (input frame), SDF grid, env map and summary JSON."""
+        from voxnero.io.exr import write_exr
+        from voxnero.mesh.io import save_mesh
+
+        mesh = self.extract(self.cfg.mesh_res)
+        path = save_mesh(self.out / "mesh.ply", mesh, self.scene.norm)
+        g = self.model.sdf
+        np.savez_compressed(self.out / "sdf.npz", sdf=g.grid.data[0].cpu().numpy(),
+                            bounds=g.bounds.cpu().numpy())
+        write_exr(self.out / "envmap.exr", self.model.env.image().detach().cpu().numpy())
+        summary = {"switches": asdict(self.sw), "steps": self.step,
+                   "train_time_s": self.train_time, "grid_res": g.res,
+                   "n_vertices": len(mesh.vertices), "n_triangles": len(mesh.triangles)}
+        (self.out / "shape.json").write_text(json.dumps(summary, indent=2))
+        return path
+
+    # ------------------------------------------------------------------ loop
+    def _log_line(self, fh, rec: dict[str, Any]) -> None:
+        fh.write(json.dumps(rec) + "\n")
+        fh.flush()
+
+    def run(self) -> Path:
+        """Train (resuming if a checkpoint exists) and write the outputs; returns mesh path."""
+        from tqdm import tqdm
+
+        cfg = self.cfg
+        self.load_checkpoint()
+        self.log(f"[shape] switches: {asdict(self.sw)}")
+        bar = tqdm(total=cfg.iters, initial=self.step, disable=not self.progress,
+                   dynamic_ncols=True, desc="shape")
+        last_ckpt = time.perf_counter()
+        log_every = max(1, cfg.iters // 200)
+        with open(self.out / "log.jsonl", "a") as fh, _Stop() as stop:
+            try:
+                while self.step < cfg.iters:
+                    t0 = time.perf_counter()
+                    rec = self.train_step()
+                    self.step += 1
+                    self.train_time += time.perf_counter() - t0
+                    bar.update(1)
+                    if self.step % log_every == 0 or self.step == cfg.iters:
+                        bar.set_postfix(loss=f"{rec['loss']:.4f}", psnr=f"{rec['psnr']:.1f}",
+                                        res=rec["res"])
+                        self._log_line(fh, {"time": round(self.train_time, 2),
+                                            "step": self.step, **rec})
+                    if cfg.eval_every_s > 0 and self.eval_split is not None and (
+                            self.train_time - self._last_eval >= cfg.eval_every_s
+                            or self.step == cfg.iters):
+                        self._last_eval = self.train_time
+                        ch = self.evaluate()
+                        if ch:
+                            self._log_line(fh, {"time": round(self.train_time, 2),
+                                                "step": self.step, "chamfer": ch["cd"],
+                                                "acc": ch["acc"], "comp": ch["comp"]})
+                            bar.write(f"[shape] step {self.step} t={self.train_time:.0f}s "
+                                      f"chamfer {ch['cd']:.4f}")
+                    if cfg.preview_every > 0 and self.step % cfg.preview_every == 0:
+                        self.write_preview()
+                    if time.perf_counter() - last_ckpt >= cfg.ckpt_every_s:
+                        self.save_checkpoint()
+                        last_ckpt = time.perf_counter()
+                    if stop.flag:
+                        raise KeyboardInterrupt
+            except KeyboardInterrupt:
+                bar.close()
+                self.save_checkpoint()
+                self.log(f"[shape] stopped at step {self.step}; checkpoint saved, re-run the "
+                         "same command to resume")
+                raise
+        bar.close()
+        self.save_checkpoint()
+        return self.write_outputs()
