@@ -6,8 +6,14 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from voxnero.fields.grid import (DenseGrid, SDFGrid, grid_points, grid_sample_points, resample,
-                                 trilinear_value_grad)
+from voxnero.fields.grid import (
+    DenseGrid,
+    SDFGrid,
+    grid_points,
+    grid_sample_points,
+    resample,
+    trilinear_value_grad,
+)
 
 
 def _rand_grid(res=(5, 6, 7), seed=0):

@@ -8,8 +8,12 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from voxnero.shape.neus import (alpha_from_interval, alpha_from_samples, composite_weights,
-                                sharpness_schedule)
+from voxnero.shape.neus import (
+    alpha_from_interval,
+    alpha_from_samples,
+    composite_weights,
+    sharpness_schedule,
+)
 
 
 @settings(max_examples=50, deadline=None)

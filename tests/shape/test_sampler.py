@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from voxnero.shape.sampler import (interval_lengths, merge_sorted, ray_sphere, sample_pdf,
-                                   stratified)
+from voxnero.shape.sampler import interval_lengths, merge_sorted, ray_sphere, sample_pdf, stratified
 
 
 def test_ray_sphere_closed_form():

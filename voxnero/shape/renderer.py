@@ -26,8 +26,7 @@ from voxnero.fields.lights import EnvLight, IndirectLight, OcclusionNet
 from voxnero.render.brdf import safe_normalize
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.neus import alpha_from_samples, alpha_from_sdf_sequence, composite_weights
-from voxnero.shape.sampler import (interval_lengths, merge_sorted, ray_sphere, sample_pdf,
-                                   stratified)
+from voxnero.shape.sampler import interval_lengths, merge_sorted, ray_sphere, sample_pdf, stratified
 from voxnero.shape.shading import reflect, shade
 
 
