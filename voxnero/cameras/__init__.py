@@ -1,0 +1,1 @@
+"""Cameras (OpenCV convention) and ray generation."""

@@ -1,0 +1,1 @@
+"""Scenes: loaders for Blender/NeRF-synthetic, NeRO and COLMAP data, normalisation."""

@@ -1,0 +1,1 @@
+"""Image, EXR and colour I/O: the only place where sRGB encoding happens."""
