@@ -6,22 +6,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 
+from voxnero.data.scene import Normalisation
 from voxnero.errors import DataError
 from voxnero.mesh.io import load_mesh, save_mesh
-
-try:
-    from voxnero.data.scene import Normalisation
-except ImportError:  # the data layer is written in parallel; a test double with its contract
-    class Normalisation:  # type: ignore[no-redef]
-        def __init__(self, center, scale):
-            self.center, self.scale = np.asarray(center, dtype=np.float64), float(scale)
-
-        def to_unit(self, p):
-            return (p - self.center) / self.scale
-
-        def to_input(self, p):
-            return p * self.scale + self.center
-
 
 NORM = Normalisation(center=np.array([1.5, -2.0, 0.25]), scale=3.7)
 

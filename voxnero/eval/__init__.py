@@ -1,0 +1,1 @@
+"""Evaluation: Chamfer distance (NeRO protocol), normal error, image metrics, reports."""
