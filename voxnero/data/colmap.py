@@ -112,7 +112,7 @@ def rotmat_to_qvec(R: np.ndarray) -> np.ndarray:
         [R[0, 0] - R[1, 1] - R[2, 2], 0, 0, 0],
         [R[1, 0] + R[0, 1], R[1, 1] - R[0, 0] - R[2, 2], 0, 0],
         [R[2, 0] + R[0, 2], R[2, 1] + R[1, 2], R[2, 2] - R[0, 0] - R[1, 1], 0],
-        [R[1, 2] - R[2, 1], R[2, 0] - R[0, 2], R[0, 1] - R[1, 0], R[0, 0] + R[1, 1] + R[2, 2]],
+        [R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1], R[0, 0] + R[1, 1] + R[2, 2]],
     ]) / 3.0
     vals, vecs = np.linalg.eigh(K)
     x, y, z, w = vecs[:, np.argmax(vals)]
@@ -395,7 +395,8 @@ def write_model(model: ColmapModel, folder: str | Path, binary: bool = False) ->
     lines = ["# 3D point list: POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[]"]
     for k, p in enumerate(model.points):
         c = model.colors[k]
-        lines.append(f"{int(model.point_ids[k])} {p[0]!r} {p[1]!r} {p[2]!r} "
+        x, y, z = (repr(float(v)) for v in p)
+        lines.append(f"{int(model.point_ids[k])} {x} {y} {z} "
                      f"{int(c[0])} {int(c[1])} {int(c[2])} {float(model.errors[k])!r}")
     (folder / "points3D.txt").write_text("\n".join(lines) + "\n")
 
