@@ -10,7 +10,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from voxnero.eval.normals import angle_deg, normal_error_at_views
-from voxnero.eval.views import MeshCaster, view_rays
 
 C, R = np.array([0.05, -0.1, 0.08]), 0.5
 
@@ -28,22 +27,6 @@ def test_angle_deg_closed_form(theta, scale):
     a = np.array([1.0, 0.0, 0.0])
     b = scale * np.array([np.cos(theta), np.sin(theta), 0.0])
     assert angle_deg(a, b) == pytest.approx(np.degrees(theta), rel=1e-9, abs=1e-9)
-
-
-def test_barycentric_convention_reproduces_hit_points(views):
-    cams = views[0]
-    mesh = icosphere(C, R, 3)
-    caster = MeshCaster(mesh)
-    o, d, _ = view_rays(cams, 0)
-    res = caster.cast(o, d)
-    hit = np.isfinite(res["t"])
-    tri = np.asarray(mesh.triangles)[res["tri"][hit]]
-    v = np.asarray(mesh.vertices)
-    u, w = res["uv"][hit][:, :1], res["uv"][hit][:, 1:]
-    p_bary = (1 - u - w) * v[tri[:, 0]] + u * v[tri[:, 1]] + w * v[tri[:, 2]]
-    p_ray = o[hit] + d[hit] * res["t"][hit][:, None]
-    assert np.abs(p_bary - p_ray).max() < 1e-5
-    assert (res["tri"][~hit] == -1).all()
 
 
 def test_sphere_normals_small_flipped_large(views):

@@ -27,7 +27,14 @@ import numpy as np
 import open3d as o3d
 import torch
 
-from voxnero.eval.views import MeshCaster, as_numpy, full_coverage, partial_coverage, view_rays
+from voxnero.eval.views import (
+    MeshCaster,
+    RayList,
+    as_numpy,
+    full_coverage,
+    iter_view_rays,
+    partial_coverage,
+)
 
 if TYPE_CHECKING:
     from voxnero.cameras.cameras import Cameras
@@ -110,7 +117,7 @@ def depth_to_points(origins: np.ndarray, dirs: np.ndarray, depth: np.ndarray,
 def view_points(caster: MeshCaster, cameras: Cameras, depth: torch.Tensor | np.ndarray,
                 masks: torch.Tensor | np.ndarray,
                 pred_pixels: Literal["unambiguous", "mask", "all"] = "unambiguous",
-                ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                rays: RayList | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Per-view ground-truth and predicted points (frame of the cameras), before downsampling.
 
     Args:
@@ -119,6 +126,7 @@ def view_points(caster: MeshCaster, cameras: Cameras, depth: torch.Tensor | np.n
         depth: ``(V, H, W)`` GT z-depth in that frame, 0 on background.
         masks: ``(V, H, W)`` GT coverage (8-bit or [0, 1], see :func:`full_coverage`).
         pred_pixels: which pixels give predicted points (module docstring).
+        rays: optional precomputed rays, ``list(iter_view_rays(cameras))``.
 
     Returns:
         Lists of ``(N_v, 3)`` GT points and ``(K_v, 3)`` predicted points, one entry per view.
@@ -130,8 +138,7 @@ def view_points(caster: MeshCaster, cameras: Cameras, depth: torch.Tensor | np.n
         raise ValueError(f"depth {depth.shape} and masks {full.shape} must be (V, H, W) with "
                          f"V = {len(cameras)} cameras")
     gts, preds = [], []
-    for v in range(len(cameras)):
-        o, d, fwd = view_rays(cameras, v)
+    for v, o, d, fwd in (rays if rays is not None else iter_view_rays(cameras)):
         if o.shape[:2] != depth.shape[1:]:
             raise ValueError(f"view {v}: rays {o.shape[:2]} but depth {depth.shape[1:]}")
         z = depth[v]
@@ -154,7 +161,7 @@ def chamfer_at_views(mesh: o3d.geometry.TriangleMesh, cameras: Cameras,
                      depth: torch.Tensor | np.ndarray, masks: torch.Tensor | np.ndarray, *,
                      norm: Normalisation | None = None, voxel: float | None = VOXEL,
                      pred_pixels: Literal["unambiguous", "mask", "all"] = "unambiguous",
-                     ) -> dict[str, float]:
+                     rays: RayList | None = None) -> dict[str, float]:
     """Chamfer distance of a mesh against test-view depth (the project's protocol).
 
     ``mesh``, ``cameras`` and ``depth`` must share one frame. Either they are in the scene's
@@ -170,12 +177,14 @@ def chamfer_at_views(mesh: o3d.geometry.TriangleMesh, cameras: Cameras,
         norm: the scene's normalisation when the inputs are in the unit frame.
         voxel: downsampling voxel (input-frame units).
         pred_pixels: which pixels give predicted points (module docstring).
+        rays: optional precomputed rays of the views, ``list(iter_view_rays(cameras))``, to
+            share them between metrics.
 
     Returns:
         dict ``cd``, ``acc`` (pred → gt), ``comp`` (gt → pred), ``n_pred``, ``n_gt`` (after
         downsampling), ``n_views``.
     """
-    gts, preds = view_points(MeshCaster(mesh), cameras, depth, masks, pred_pixels)
+    gts, preds = view_points(MeshCaster(mesh), cameras, depth, masks, pred_pixels, rays)
     g = np.concatenate(gts, 0)
     p = np.concatenate(preds, 0)
     if norm is not None:

@@ -14,16 +14,45 @@ those, pixels where the predicted mesh is missed are excluded from the angles an
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import open3d as o3d
 import torch
 
-from voxnero.eval.views import MeshCaster, as_numpy, full_coverage, view_rays
+from voxnero.eval.views import (
+    MeshCaster,
+    RayList,
+    as_numpy,
+    full_coverage,
+    iter_view_rays,
+    view_rays,
+)
 
 if TYPE_CHECKING:
     from voxnero.cameras.cameras import Cameras
+
+
+def load_gt_normals(scene_root: str | Path, split: str, names: list[str]) -> np.ndarray | None:
+    """Ground-truth normal maps of a dev/synth scene: ``gt/<split>_normal/<name>.exr``.
+
+    Args:
+        scene_root: scene folder.
+        split: split name (``"test"``).
+        names: image names (file stems) in the split's order.
+
+    Returns:
+        ``(V, H, W, 3)`` float32 world-space unit normals (0 on background), or None when the
+        scene has no such folder. World space is the input frame; directions do not change
+        under the project's normalisation (translation + uniform scale).
+    """
+    from voxnero.io.exr import read_exr
+
+    folder = Path(scene_root) / "gt" / f"{split}_normal"
+    if not folder.is_dir():
+        return None
+    return np.stack([read_exr(folder / f"{n}.exr")[..., :3] for n in names])
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -36,13 +65,22 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def render_normals(caster: MeshCaster, cameras: Cameras, index: int,
-                   source: Literal["vertex", "face"] = "vertex") -> tuple[np.ndarray, np.ndarray]:
+                   source: Literal["vertex", "face"] = "vertex",
+                   rays: tuple[np.ndarray, np.ndarray] | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """World-space normal map of the mesh seen from one view.
+
+    Args:
+        caster: the mesh, ready to cast.
+        cameras: cameras in the mesh's frame.
+        index: the view.
+        source: ``"vertex"`` (interpolated vertex normals) or ``"face"``.
+        rays: optional precomputed ``(origins, dirs)`` ``(H, W, 3)`` of that view.
 
     Returns:
         ``normals (H, W, 3)`` unit (0 where missed) and ``hit (H, W)`` bool.
     """
-    o, d, _ = view_rays(cameras, index)
+    o, d = rays if rays is not None else view_rays(cameras, index)[:2]
     res = caster.cast(o, d)
     hit = np.isfinite(res["t"])
     n = np.zeros(o.shape, dtype=np.float64)
@@ -58,7 +96,8 @@ def render_normals(caster: MeshCaster, cameras: Cameras, index: int,
 def normal_error_at_views(mesh: o3d.geometry.TriangleMesh, cameras: Cameras,
                           gt_normals: torch.Tensor | np.ndarray,
                           masks: torch.Tensor | np.ndarray,
-                          source: Literal["vertex", "face"] = "vertex") -> dict[str, float]:
+                          source: Literal["vertex", "face"] = "vertex",
+                          rays: RayList | None = None) -> dict[str, float]:
     """Angular error between the mesh's normals and GT normal maps at test views.
 
     Args:
@@ -67,6 +106,7 @@ def normal_error_at_views(mesh: o3d.geometry.TriangleMesh, cameras: Cameras,
         gt_normals: ``(V, H, W, 3)`` world-space unit normals (0 on background).
         masks: ``(V, H, W)`` coverage (8-bit, 255 = full, or fractions in [0, 1]).
         source: ``"vertex"`` (interpolated vertex normals, default) or ``"face"``.
+        rays: optional precomputed rays, ``list(iter_view_rays(cameras))``.
 
     Returns:
         dict ``mean_deg``, ``median_deg``, ``n_pixels`` (compared), ``hit_fraction`` (of the
@@ -83,8 +123,8 @@ def normal_error_at_views(mesh: o3d.geometry.TriangleMesh, cameras: Cameras,
         mesh.compute_vertex_normals()
     caster = MeshCaster(mesh)
     angles, eligible = [], 0
-    for v in range(len(cameras)):
-        pred, hit = render_normals(caster, cameras, v, source)
+    for v, o, d, _ in (rays if rays is not None else iter_view_rays(cameras)):
+        pred, hit = render_normals(caster, cameras, v, source, rays=(o, d))
         ok = full[v] & (np.linalg.norm(gt[v], axis=-1) > 0.5)
         eligible += int(ok.sum())
         ok &= hit
