@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import functools
-import json
 from pathlib import Path
 
 import numpy as np
 import open3d as o3d
 import pytest
 
-from voxnero.cameras.cameras import Cameras, opengl_to_opencv
+from voxnero.cameras.cameras import Cameras
 from voxnero.cameras.rays import image_rays
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
@@ -75,31 +74,23 @@ def icosphere(center, radius, subdiv=6) -> o3d.geometry.TriangleMesh:
 
 @functools.lru_cache(maxsize=2)
 def _dev_views(name: str):
-    """Test views of a dev scene in its own (input) frame, read from its files.
+    """Test views of a dev scene as ``voxnero eval`` sees them, in the scene's UNIT frame.
 
-    Private stand-in for voxnero.data.detect.load_scene (not written yet when these tests were
-    started): json poses (OpenGL -> OpenCV), gt/test_depth, gt/test_normal, test_mask (8-bit).
+    Loaded with voxnero.data.detect.load_scene (cameras, z-depth and masks of the test split),
+    the GT normals with voxnero.eval.normals.load_gt_normals and the GT mesh mapped into the
+    unit frame; ``norm`` maps results back to the input frame, where Chamfer is measured.
     """
-    from PIL import Image
-
-    from voxnero.io.exr import read_exr
+    from voxnero.data.detect import load_scene
+    from voxnero.eval.normals import load_gt_normals
+    from voxnero.mesh.io import load_mesh
 
     root = DATA / name
-    meta = json.loads((root / "transforms_test.json").read_text())
-    w, h = int(meta["w"]), int(meta["h"])
-    K = np.array([[meta["fl_x"], 0, meta["cx"]], [0, meta["fl_y"], meta["cy"]], [0, 0, 1]])
-    c2w, depth, normals, masks = [], [], [], []
-    for fr in meta["frames"]:
-        stem = Path(fr["file_path"]).name
-        c2w.append(opengl_to_opencv(np.asarray(fr["transform_matrix"], dtype=np.float64)))
-        depth.append(read_exr(root / "gt" / "test_depth" / f"{stem}.exr")[..., 0])
-        normals.append(read_exr(root / "gt" / "test_normal" / f"{stem}.exr"))
-        masks.append(np.asarray(Image.open(root / "test_mask" / f"{stem}.png")))
-    cams = Cameras(np.stack([K] * len(c2w)), np.stack(c2w), w, h)
-    mesh = o3d.io.read_triangle_mesh(str(root / "gt" / "mesh.ply"))
-    mesh.compute_vertex_normals()
-    return {"root": root, "cameras": cams, "depth": np.stack(depth), "normals": np.stack(normals),
-            "masks": np.stack(masks), "mesh": mesh}
+    scene = load_scene(root, splits=("test",), eval_extras=True)
+    sp = scene.split("test")
+    mesh = load_mesh(root / "gt" / "mesh.ply", norm=scene.norm)
+    return {"root": root, "cameras": sp.cameras, "depth": sp.depth.numpy(),
+            "masks": sp.masks.numpy(), "normals": load_gt_normals(root, "test", sp.names),
+            "mesh": mesh, "norm": scene.norm}
 
 
 @pytest.fixture
