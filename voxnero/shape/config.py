@@ -12,7 +12,8 @@ from typing import Literal
 
 from voxnero.errors import ConfigError
 
-Switch = Literal["auto", "on", "off"]
+Switch = Literal["auto", "on", "off"] | bool
+"""A model switch; YAML reads on/off as true/false, which mean the same."""
 
 
 @dataclass
@@ -24,8 +25,10 @@ class GridConfig:
     upsample_at: list[float] = field(default_factory=lambda: [0.3])
     """Fractions of ``iters`` at which to move to the next resolution (len(res) − 1 values)."""
     bound: float = 1.05
-    init_radius: float = 0.95
-    """Radius of the initial SDF sphere: start around the object and carve inward."""
+    init_radius: float = 0.75
+    """Radius of the initial SDF sphere: start around the object and carve inward, but leave
+    background visible in every view (the unit sphere is the largest one every view sees whole):
+    from 0.95 nothing was carved in 90 s on sphere_gold, the env map had no background to learn."""
     normals: Literal["analytic", "fd"] = "analytic"
     fd_step: float = 1.0
     """Central-difference half-step in voxels (normals: fd)."""
@@ -118,14 +121,17 @@ class ShapeConfig:
     light: LightConfig = field(default_factory=LightConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
-    mesh_res: int = 256
+    mesh_res: int = 192
     """Resolution of the grid resampling used for the final marching cubes."""
+    eval_mesh_res: int = 0
+    """Marching-cubes resolution of the periodic Chamfer evaluations (0 = the grid's own)."""
     ckpt_every_s: float = 60.0
     preview_every: int = 500
     eval_every_s: float = 60.0
     """Seconds of training between Chamfer evaluations (scenes with GT only; 0 = never)."""
-    threads: int = 0
-    """torch CPU threads (0 = torch's default)."""
+    threads: int = 1
+    """torch CPU threads (0 = torch's default). On the shared 2-core dev machine one thread was
+    2.5× faster than two under contention (docs/BENCHMARKS.md); raise it on a dedicated machine."""
 
     def validate(self) -> None:
         """Check cross-field consistency; raise :class:`ConfigError` with the fix."""

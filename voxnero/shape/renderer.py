@@ -15,6 +15,7 @@ Per ray (unit frame, ``o + t·d``):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -87,8 +88,8 @@ def background(model: ShapeModel, dirs: torch.Tensor) -> torch.Tensor:
 
 
 def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s: float,
-                cfg: ShapeConfig, train: bool = True, generator: torch.Generator | None = None
-                ) -> dict[str, torch.Tensor]:
+                cfg: ShapeConfig, train: bool = True, generator: torch.Generator | None = None,
+                mark: Callable[[str], None] | None = None) -> dict[str, torch.Tensor]:
     """Render a batch of rays.
 
     Args:
@@ -98,6 +99,8 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
         cfg: stage-1 config (sampling counts, normal mode).
         train: jitter samples (else deterministic).
         generator: RNG for the jitter.
+        mark: optional profiler hook, called with a phase name at the end of each phase
+            ("sampling", "grid", "neus", "heads", "shading"; see tools/bench_shape.py).
 
     Returns:
         dict with ``rgb (R, 3)`` linear radiance, ``acc (R,)``, ``normal (R, 3)`` (zero where no
@@ -105,6 +108,7 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
         the eikonal loss) and, for the hit rays only (index ``hit``): ``x (H, 3)`` surface point,
         ``refl (H, 3)``, ``occ (H, 1)`` predicted occlusion (if the net is on), ``acc_hit (H,)``.
     """
+    mark = mark or (lambda name: None)
     sc = cfg.sampling
     r = origins.shape[0]
     dev = origins.device
@@ -127,20 +131,24 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
         zf = sample_pdf(zc, w_c, sc.fine, jitter=train, generator=generator)
         step = max(sc.coarse // max(sc.coarse_keep, 1), 1)
         z = merge_sorted(zc[:, ::step][:, :sc.coarse_keep], zf)
+    mark("sampling")
     # 2. SDF + gradient at the samples, NeuS weights
     pts = o[:, None] + z[..., None] * d[:, None]
     sdf, grad = model.sdf.sdf_grad(pts.reshape(-1, 3), cfg.grid.normals, cfg.grid.fd_step)
     sdf = sdf.view(z.shape)
     grad3 = grad.view(*z.shape, 3)
+    mark("grid")
     cos = (grad3 * d[:, None]).sum(-1)
     dists = interval_lengths(z, n0, f0)
     w = composite_weights(alpha_from_samples(sdf, cos, dists, s))
     acc = w.sum(-1)
+    mark("neus")
     # 3. deferred shading at the weight-averaged point / normal
     n = safe_normalize((w[..., None] * safe_normalize(grad3)).sum(1))
     x = (w[..., None] * pts).sum(1) / acc.clamp(min=1e-6)[:, None]
     feat = model.feat(x)
     albedo, metallic, rough = model.material(feat)
+    mark("heads")
     refl = reflect(d, n)
     spec = model.env.specular(refl, rough)
     occ = None
@@ -154,6 +162,7 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
     rgb = rgb.index_put((idx,), acc[:, None] * surf + (1.0 - acc[:, None]) * bg[idx])
     acc_all = acc_all.index_put((idx,), acc)
     normal_all = normal_all.index_put((idx,), n)
+    mark("shading")
     out.update(rgb=rgb, acc=acc_all, normal=normal_all, grad=grad, x=x.detach(),
                refl=refl.detach(), n_hit=n.detach(), acc_hit=acc.detach(), hit_idx=idx,
                albedo=albedo, metallic=metallic, roughness=rough)

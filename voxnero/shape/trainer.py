@@ -50,12 +50,16 @@ def resolve_switches(cfg: ShapeConfig, scene: Any) -> Switches:
       them from the data.
     """
     lc = cfg.light
+
+    def on(v) -> bool:
+        return v not in ("off", False)
+
     bg = lc.background
     if bg == "auto":
         bg = "alpha" if getattr(scene, "background", "") == "alpha" else "distant"
     color = tuple(getattr(scene, "meta", {}).get("bg_color", (1.0, 1.0, 1.0)))
-    return Switches(indirect=lc.indirect != "off" and lc.occlusion != "off",
-                    occlusion=lc.occlusion != "off", metallic=lc.metallic != "off",
+    return Switches(indirect=on(lc.indirect) and on(lc.occlusion),
+                    occlusion=on(lc.occlusion), metallic=on(lc.metallic),
                     background=bg, bg_color=color)
 
 
@@ -230,9 +234,9 @@ class ShapeTrainer:
         loss.backward()
         self.opt.step()
         m.env.release()
-        return {"loss": float(loss), "color": float(l_col), "eik": float(l_eik),
-                "occ": float(l_occ), "psnr": losses.psnr(out["rgb"], target), "s": s,
-                "res": m.sdf.res}
+        return {"loss": float(loss.detach()), "color": float(l_col.detach()),
+                "eik": float(l_eik.detach()), "occ": float(l_occ.detach()),
+                "psnr": losses.psnr(out["rgb"], target), "s": s, "res": m.sdf.res}
 
     # ------------------------------------------------------------------ surfaces
     @torch.no_grad()
@@ -263,7 +267,7 @@ class ShapeTrainer:
 
         te = self.eval_split
         try:
-            mesh = self.extract(self.cfg.mesh_res)
+            mesh = self.extract(self.cfg.eval_mesh_res or None)
         except Exception as e:
             self.log(f"[shape] evaluation skipped: {e}")
             return None

@@ -1,0 +1,62 @@
+"""``voxnero shape``: stage 1 — SDF geometry of a reflective object from posed photos.
+
+Writes ``mesh.ply`` (input frame) and the run files described in
+:mod:`voxnero.shape.trainer` into ``--out``. Re-running the same command resumes from the last
+checkpoint (Ctrl-C or ``kill`` save one first).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+NAME = "shape"
+HELP = "stage 1: SDF geometry (mesh.ply) from posed photos"
+DESCRIPTION = ("Stage 1: reconstruct the geometry of a (shiny) object as a dense SDF grid with "
+               "NeuS volume rendering and split-sum shading; writes mesh.ply in the input frame, "
+               "checkpoints, previews and a log. Re-run the same command to resume.")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from voxnero.cli import add_common
+
+    add_common(parser, "scene folder (NeRF-synthetic/Blender, NeRO or COLMAP)",
+               default_preset="standard")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--no-eval", action="store_true",
+                        help="do not log Chamfer even if the scene has ground truth")
+
+
+def _load(path: str, with_eval: bool):
+    from voxnero.data.detect import load_scene
+    from voxnero.errors import DataError
+
+    if with_eval:
+        try:
+            return load_scene(path, splits=("train", "test"), eval_extras=True)
+        except DataError:
+            pass
+    return load_scene(path, splits=("train",))
+
+
+def run(args: argparse.Namespace) -> int:
+    from voxnero.config import resolve, save_resolved
+    from voxnero.device import default_device
+    from voxnero.shape.config import ShapeConfig
+    from voxnero.shape.trainer import ShapeTrainer
+
+    cfg = resolve(ShapeConfig, "shape", args.preset, args.overrides)
+    device = default_device(args.device)
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    scene = _load(args.target, not args.no_eval)
+    print(f"[shape] loaded {args.target} in {time.perf_counter() - t0:.1f} s; device {device}",
+          flush=True)
+    save_resolved(out, {"shape": cfg}, meta={"command": "shape", "scene": str(args.target),
+                                             "preset": args.preset,
+                                             "overrides": list(args.overrides)})
+    trainer = ShapeTrainer(cfg, scene, out, device=device, progress=not args.no_progress)
+    mesh = trainer.run()
+    print(f"[shape] wrote {mesh} ({trainer.train_time:.0f} s of training, {trainer.step} steps)")
+    return 0
