@@ -60,13 +60,14 @@ def test_ellipsoid_axis_order_on_non_cubic_grid():
     a = np.array([0.6, 0.4, 0.25])  # distinct semi-axes along x, y, z
     c = np.array([0.1, -0.05, 0.2])
     shape = (50, 60, 70)  # D, H, W all different
-    X, Y, Z = grid(LO, HI, shape)
+    lo, hi = np.array([-1.0, -0.9, -0.8]), np.array([0.9, 1.3, 1.6])  # spans 1.9, 2.2, 2.4
+    X, Y, Z = grid(lo, hi, shape)
     q = np.sqrt(((X - c[0]) / a[0]) ** 2 + ((Y - c[1]) / a[1]) ** 2 + ((Z - c[2]) / a[2]) ** 2)
     sdf = (q - 1.0) * a.min()  # same zero set; values only roughly distances
-    mesh = extract_mesh(torch.from_numpy(sdf).float(), torch.from_numpy(np.stack([LO, HI])))
+    mesh = extract_mesh(torch.from_numpy(sdf).float(), torch.from_numpy(np.stack([lo, hi])))
     v = np.asarray(mesh.vertices)
     half = (v.max(0) - v.min(0)) / 2
-    step = (HI - LO) / (np.array(shape[::-1]) - 1)  # (dx, dy, dz)
+    step = (hi - lo) / (np.array(shape[::-1]) - 1)  # (dx, dy, dz)
     assert np.all(np.abs(half - a) <= step), (half, a)
     assert np.allclose((v.max(0) + v.min(0)) / 2, c, atol=step.max())
     qv = np.linalg.norm((v - c) / a, axis=1)
