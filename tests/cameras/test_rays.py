@@ -41,6 +41,28 @@ def test_principal_point_ray_is_optical_axis():
     torch.testing.assert_close(o, cams.centers)
 
 
+def test_camera_dirs_match_kornia_unproject():
+    from kornia.geometry.camera import unproject_points
+
+    from voxnero.cameras.rays import camera_dirs
+
+    cams = _cams(seed=5)
+    g = torch.Generator().manual_seed(1)
+    cam, pix = random_pixels(300, 3, cams.height, cams.width, generator=g, jitter=True)
+    K = cams.K[cam]
+    ref = unproject_points(pix, torch.ones(300, 1), K)
+    torch.testing.assert_close(camera_dirs(K, pix), ref, atol=1e-6, rtol=1e-6)
+
+
+def test_image_rays_equal_pixel_rays():
+    cams = _cams(seed=6)
+    o, d = image_rays(cams, 2)
+    pix = pixel_centers(cams.height, cams.width).reshape(-1, 2)
+    o2, d2 = pixel_rays(cams, torch.full((pix.shape[0],), 2), pix)
+    torch.testing.assert_close(d.reshape(-1, 3), d2, atol=1e-6, rtol=0)
+    torch.testing.assert_close(o.reshape(-1, 3), o2)
+
+
 def test_projecting_a_point_on_a_ray_returns_the_pixel():
     cams = _cams(seed=1)
     g = torch.Generator().manual_seed(0)

@@ -4,14 +4,14 @@ Pixel coordinates are continuous ``(x = column, y = row)`` in the frame of ``K``
 (column i, row j) covers ``[i, i+1] x [j, j+1]`` and its centre is ``(i + 0.5, j + 0.5)``.
 Rays are returned in the world frame of the cameras (the unit frame inside a ``Scene``):
 origins are the camera centres and directions are unit vectors. The camera-space direction of a
-pixel is ``K^-1 (x, y, 1)`` (OpenCV: +z forward), computed with kornia's
-``unproject_points``, then rotated by ``c2w``.
+pixel is ``K^-1 (x, y, 1)`` (OpenCV: +z forward; the same as kornia's ``unproject_points``
+at depth 1, written out so that no per-ray ``(3, 3)`` copy is needed), then rotated by
+``c2w``. ``pixel_rays`` and ``image_rays`` compute the same thing (tested).
 """
 
 from __future__ import annotations
 
 import torch
-from kornia.geometry.camera import unproject_points
 
 from voxnero.cameras.cameras import Cameras
 
@@ -20,16 +20,18 @@ def camera_dirs(K: torch.Tensor, pix: torch.Tensor) -> torch.Tensor:
     """Unnormalised camera-space ray directions ``K^-1 (x, y, 1)`` (z = 1).
 
     Args:
-        K: ``(M, 3, 3)`` or ``(3, 3)`` intrinsics in pixels.
+        K: ``(M, 3, 3)`` or ``(3, 3)`` intrinsics in pixels (skew allowed).
         pix: ``(M, 2)`` continuous pixel coordinates (column, row).
 
     Returns:
         ``(M, 3)`` directions in OpenCV camera axes with z = 1.
     """
     if K.ndim == 2:
-        K = K.expand(pix.shape[0], 3, 3)
-    ones = torch.ones_like(pix[:, :1])
-    return unproject_points(pix, ones, K)
+        K = K[None]
+    fx, fy, cx, cy, skew = K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 0, 1]
+    y = (pix[:, 1] - cy) / fy
+    x = (pix[:, 0] - cx - skew * y) / fx
+    return torch.stack([x, y, torch.ones_like(x)], dim=-1)
 
 
 def pixel_rays(cameras: Cameras, cam_idx: torch.Tensor, pix: torch.Tensor
@@ -51,8 +53,7 @@ def pixel_rays(cameras: Cameras, cam_idx: torch.Tensor, pix: torch.Tensor
     d_cam = camera_dirs(cameras.K[cam_idx], pix)
     c2w = cameras.c2w[cam_idx]
     dirs = torch.einsum("mij,mj->mi", c2w[:, :3, :3], d_cam)
-    dirs = torch.nn.functional.normalize(dirs, dim=-1)
-    return c2w[:, :3, 3], dirs
+    return c2w[:, :3, 3], torch.nn.functional.normalize(dirs, dim=-1)
 
 
 def pixel_centers(height: int, width: int, downscale: int = 1,
@@ -92,9 +93,10 @@ def image_rays(cameras: Cameras, index: int, downscale: int = 1
     """
     pix = pixel_centers(cameras.height, cameras.width, downscale, cameras.device)
     h, w = pix.shape[:2]
-    idx = torch.full((h * w,), int(index), dtype=torch.long, device=cameras.device)
-    o, d = pixel_rays(cameras, idx, pix.reshape(-1, 2))
-    return o.reshape(h, w, 3), d.reshape(h, w, 3)
+    c2w = cameras.c2w[int(index)]
+    d = camera_dirs(cameras.K[int(index)], pix.reshape(-1, 2)) @ c2w[:3, :3].T
+    d = torch.nn.functional.normalize(d, dim=-1).reshape(h, w, 3)
+    return c2w[:3, 3].expand(h, w, 3).clone(), d
 
 
 def random_pixels(n: int, n_cams: int, height: int, width: int,
