@@ -47,6 +47,22 @@ def test_eval_run_folder_finds_scene_in_config(tmp_path):
     assert not list(out.glob("*.png"))
 
 
+@needs_data
+def test_mesh_in_the_wrong_frame_is_flagged(tmp_path, capsys):
+    import open3d as o3d
+
+    far = o3d.geometry.TriangleMesh.create_sphere(0.5)
+    far.translate((50.0, 0.0, 0.0))  # e.g. a mesh written in some other frame
+    path = tmp_path / "far.ply"
+    o3d.io.write_triangle_mesh(str(path), far)
+    out = tmp_path / "eval"
+    assert main(["eval", str(path), "views=[0]", "images=0", "--scene", str(SG),
+                 "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["chamfer"]["cd"] == "inf" and m["chamfer"]["n_pred"] == 0
+    assert "input frame" in m["warning"] and "warning:" in capsys.readouterr().out
+
+
 def test_errors_are_one_line_exit_2(tmp_path, capsys):
     empty = tmp_path / "run"
     empty.mkdir()

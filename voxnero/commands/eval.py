@@ -116,6 +116,9 @@ def evaluate(mesh_path: Path, scene_path: Path, cfg, out: Path) -> dict:
     ch.pop("n_views", None)
     metrics["chamfer"] = {**ch, "voxel": cfg.voxel, "pred_pixels": cfg.pred_pixels,
                           "frame": "input"}
+    if ch["n_pred"] == 0:
+        metrics["warning"] = ("no test ray hit the mesh: is it written in the scene's input frame "
+                              "(the frame of its cameras)?")
     images = {}
     gt_n = load_gt_normals(scene.root, cfg.split, names)
     if gt_n is not None:
@@ -153,5 +156,7 @@ def run(args: argparse.Namespace) -> int:
         line += (f"; normal error mean {m['normals']['mean_deg']:.2f} deg, median "
                  f"{m['normals']['median_deg']:.2f} deg")
     print(line)
+    if "warning" in m:
+        print(f"warning: {m['warning']}")
     print(f"wrote {out / 'metrics.json'} and {out / 'metrics.md'}")
     return 0
