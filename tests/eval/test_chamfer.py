@@ -198,6 +198,3 @@ def test_dev_scene_gt_mesh_against_gt_depth(dev_scene, name):
     # points straddle voxel borders differently. This is the protocol's floor.
     assert out["cd"] <= 0.002
     assert out["n_gt"] > 50_000
-    # in unit-frame units (no norm) the same clouds give a smaller number: scale 4 sin 20° = 1.37
-    unit = chamfer_at_views(sc["mesh"], sc["cameras"], sc["depth"], sc["masks"])
-    assert unit["cd"] == pytest.approx(out["cd"] / sc["norm"].scale, rel=0.3)
