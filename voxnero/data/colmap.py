@@ -120,8 +120,11 @@ def rotmat_to_qvec(R: np.ndarray) -> np.ndarray:
     return q if w >= 0 else -q
 
 
-def camera_matrix(cam: ColmapCamera) -> tuple[np.ndarray, np.ndarray]:
-    """Pinhole ``K (3, 3)`` and OpenCV distortion ``(k1, k2, p1, p2)`` of a supported model."""
+def camera_matrix(cam: ColmapCamera, path: Path | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Pinhole ``K (3, 3)`` and OpenCV distortion ``(k1, k2, p1, p2)`` of a supported model.
+
+    ``path`` (the cameras file) is named in the error for an unsupported model.
+    """
     p = cam.params
     if cam.model == "SIMPLE_PINHOLE":
         fx = fy = p[0]
@@ -139,7 +142,7 @@ def camera_matrix(cam: ColmapCamera) -> tuple[np.ndarray, np.ndarray]:
         dist = tuple(p[4:8])
     else:
         raise DataError(f"camera {cam.id}: model {cam.model} is not supported "
-                        f"(supported: {', '.join(SUPPORTED)})", fix=_UNDISTORT_FIX)
+                        f"(supported: {', '.join(SUPPORTED)})", path=path, fix=_UNDISTORT_FIX)
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], dtype=np.float64)
     return K, np.asarray(dist, dtype=np.float64)
 
@@ -451,7 +454,7 @@ def load_colmap(root: str | Path, splits=("train",), white_bg: bool = False, rad
         if cam is None:
             raise DataError(f"image {im.name!r} uses camera {im.camera_id}, which is not in "
                             "the cameras file", path=mdir, fix="re-export the model")
-        K, dist = camera_matrix(cam)
+        K, dist = camera_matrix(cam, _model_file(mdir, "cameras"))
         if not (np.isfinite(im.qvec).all() and np.isfinite(im.tvec).all()
                 and np.linalg.norm(im.qvec) > 0):
             raise DataError(f"image {im.name!r}: non-finite or zero pose", path=mdir,
