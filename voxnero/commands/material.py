@@ -1,21 +1,168 @@
-"""``voxnero material``: stage 2 (materials and lights on the fixed mesh).
+"""``voxnero material``: stage 2 — materials and lights on a fixed mesh, exported as an asset.
 
-Not built yet (issue #4)."""
+``voxnero material RUN_OR_MESH [--scene SCENE] --preset NAME --out DIR [key=value ...]``
+
+RUN_OR_MESH is a stage-1 run folder (``mesh.ply`` in the input frame and ``config.yaml`` naming
+the scene in ``_meta.scene``) or a mesh file in the scene's input frame (then ``--scene`` is
+required). Writes into ``--out``: ``model.glb`` (+ ``model.glb.json``), ``model.obj`` / ``.mtl`` /
+PNG textures, ``envmap.exr`` (+ ``envmap.json``), ``materials.json`` (statistics, decisions,
+timings, metrics), ``config.yaml`` (resolved config), ``checkpoint.pt`` (re-running resumes)
+and, if the scene has test views, ``eval/`` comparison images.
+"""
 
 from __future__ import annotations
 
 import argparse
-
-from voxnero.cli import add_common
-from voxnero.commands._notbuilt import not_built
+import json
+import time
+from pathlib import Path
 
 NAME = "material"
-HELP = "stage 2 (materials and lights on the fixed mesh) [not built yet]"
+HELP = "stage 2: materials and env light on a fixed mesh -> model.glb, envmap.exr"
+DESCRIPTION = __doc__.split("\n\n", 1)[1]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_common(parser, "scene folder or run folder", out_required=False)
+    from voxnero.cli import add_common
+
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    add_common(parser, "stage-1 run folder (mesh.ply + config.yaml) or a mesh file (input "
+               "frame; then --scene is required)")
+    parser.add_argument("--scene", default=None,
+                        help="scene folder (default: _meta.scene of the run's config.yaml)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def locate(target: str | Path, scene: str | None) -> tuple[Path, Path]:
+    """The mesh file and the scene folder a stage-2 run uses.
+
+    Raises:
+        DataError / ConfigError: no mesh, or no scene named anywhere.
+    """
+    import yaml
+
+    from voxnero.errors import ConfigError, DataError
+
+    p = Path(target)
+    if p.is_dir():
+        mesh = p / "mesh.ply"
+        if not mesh.is_file():
+            raise DataError("this folder holds no mesh.ply", path=p,
+                            fix="pass a finished 'voxnero shape' run folder or a mesh file")
+    elif p.is_file():
+        mesh = p
+    else:
+        raise DataError("no such run folder or mesh file", path=p,
+                        fix="pass a stage-1 run folder or a .ply/.obj mesh (input frame)")
+    if scene:
+        return mesh, Path(scene)
+    cfg = mesh.parent / "config.yaml"
+    if cfg.is_file():
+        try:
+            meta = (yaml.safe_load(cfg.read_text()) or {}).get("_meta", {}) or {}
+        except yaml.YAMLError:
+            meta = {}
+        if meta.get("scene"):
+            return mesh, Path(meta["scene"])
+    raise ConfigError(f"no scene given for {p}", fix="pass --scene SCENE_FOLDER (the photos the "
+                      "mesh was made from)")
 
 
 def run(args: argparse.Namespace) -> int:
-    return not_built(NAME, "issue #4")
+    import numpy as np
+    import torch
+
+    from voxnero.config import resolve, save_resolved
+    from voxnero.data.detect import load_scene
+    from voxnero.eval.images import psnr
+    from voxnero.export.envmap import write_envmap
+    from voxnero.export.gltf import write_glb
+    from voxnero.export.obj import write_obj
+    from voxnero.export.summary import vertex_areas, write_summary
+    from voxnero.export.textures import bake_textures
+    from voxnero.io.color import linear_to_srgb
+    from voxnero.io.exr import read_envmap
+    from voxnero.material.config import MaterialConfig
+    from voxnero.material.evaluate import evaluate_scene
+    from voxnero.material.field import vertex_materials
+    from voxnero.material.render import Strategies
+    from voxnero.material.surface import Geometry, build_cache
+    from voxnero.material.trainer import MaterialTrainer
+    from voxnero.mesh.io import load_mesh
+
+    cfg = resolve(MaterialConfig, "material", args.preset, args.overrides)
+    if cfg.threads > 0:
+        torch.set_num_threads(cfg.threads)
+    mesh_path, scene_path = locate(args.target, args.scene)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    save_resolved(out, {"material": cfg}, meta={
+        "command": "material", "mesh": str(mesh_path), "scene": str(scene_path),
+        "preset": args.preset, "overrides": list(args.overrides)})
+    times = {}
+    t0 = time.perf_counter()
+    scene = load_scene(scene_path, splits=("train",))
+    train = scene.split("train")
+    mesh = load_mesh(mesh_path, scene.norm)
+    geom = Geometry.from_legacy(mesh)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    cache = build_cache(geom, train.images, train.cameras, cfg.max_pixels, gen)
+    times["load_and_cast_s"] = time.perf_counter() - t0
+    print(f"[material] {scene_path}: {train.n} views; mesh {mesh_path} "
+          f"({len(mesh.vertices)} vertices); object pixels {cache.n_object_total} "
+          f"(kept {cache.x.shape[0]}), background {cache.n_background_total} "
+          f"(kept {cache.bg_dirs.shape[0]}); {times['load_and_cast_s']:.1f} s", flush=True)
+    if cache.x.shape[0] == 0:
+        from voxnero.errors import DataError
+
+        raise DataError("no training pixel sees the mesh", path=mesh_path,
+                        fix="the mesh must be in the scene's input frame (as stage 1 writes it)")
+
+    trainer = MaterialTrainer(cfg, geom, cache)
+    t1 = time.perf_counter()
+    summary = trainer.fit(out / "checkpoint.pt", progress=not args.no_progress)
+    times["train_s"] = time.perf_counter() - t1
+    print(f"[material] trained {trainer.step} steps in {times['train_s']:.1f} s", flush=True)
+
+    # ---- exports (input frame)
+    t2 = time.perf_counter()
+    env = trainer.env.image().detach()
+    a, m, r = vertex_materials(trainer.field, geom)
+    mesh_in = load_mesh(mesh_path)  # input frame, same vertex order
+    tm = bake_textures(mesh_in, a.numpy(), m.numpy(), r.numpy(), cfg.texture_size)
+    up = [float(x) for x in scene.up]
+    write_glb(out / "model.glb", tm, sidecar={"scene_up": up, "scene": str(scene_path)})
+    write_obj(out / "model.obj", tm)
+    write_envmap(out / "envmap.exr", env.numpy(), extra={"scene_up": up,
+                                                         "made_by": "voxnero material"})
+    times["export_s"] = time.perf_counter() - t2
+
+    # ---- checks: the exported env map reproduces the training background
+    env_back = torch.from_numpy(read_envmap(out / "envmap.exr")).float()
+    from voxnero.render.envmap import envmap_lookup
+
+    bg_psnr = float("nan")
+    if cache.bg_dirs.shape[0]:
+        bg = envmap_lookup(env_back, cache.bg_dirs)
+        bg_psnr = psnr(linear_to_srgb(bg.clamp(0, 1))[None, None],
+                       linear_to_srgb(cache.bg_rgb)[None, None])
+    print(f"[material] envmap.exr as background vs training background pixels: PSNR "
+          f"{bg_psnr:.2f} dB", flush=True)
+
+    metrics = {"background_psnr_train": bg_psnr, "train_loss": summary}
+    if cfg.eval_views != 0:
+        t3 = time.perf_counter()
+        s = cfg.render.eval_scale
+        spp = Strategies(cfg.render.spp_cos * s, cfg.render.spp_ggx * s, cfg.render.spp_env * s)
+        metrics.update(evaluate_scene(scene_path, geom, trainer.field, env, spp,
+                                      trainer.use_indirect, cfg.render.visibility,
+                                      cfg.eval_views, out / "eval"))
+        times["eval_s"] = time.perf_counter() - t3
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=1, default=str))
+    w = vertex_areas(geom.vertices.numpy().astype(np.float64), geom.triangles.numpy())
+    write_summary(out / "materials.json", a.numpy(), m.numpy(), r.numpy(), w, env.numpy(),
+                  extra={"decisions": trainer.decisions, "times": times, "metrics": metrics,
+                         "mesh": str(mesh_path), "scene": str(scene_path)})
+    print(f"[material] wrote {out / 'model.glb'}, model.obj, envmap.exr, materials.json "
+          f"(total {time.perf_counter() - t0:.0f} s)")
+    return 0

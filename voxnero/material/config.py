@@ -1,0 +1,111 @@
+"""Configuration of stage 2 (``voxnero material``): one small dataclass per component.
+
+Presets set these in the ``material:`` section of ``configs/<preset>.yaml``; every key can be
+overridden on the command line (``iters=800``, ``render.spp_ggx=16``, ``field.kind=grid``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from dataclasses import field as _field
+from typing import Literal
+
+from voxnero.errors import ConfigError
+
+
+@dataclass
+class FieldConfig:
+    """Material field over the fixed surface: albedo, metallic, roughness."""
+
+    kind: Literal["vertex", "grid"] = "vertex"
+    """vertex: parameters per mesh vertex, barycentric interpolation, edge-Laplacian smoothness;
+    grid: dense trilinear grid over the unit cube, total-variation smoothness."""
+    grid_res: int = 48
+    """Grid resolution (kind: grid)."""
+    smooth: float = 0.05
+    """Weight of the smoothness regulariser (mean squared difference of neighbours)."""
+    init_albedo: float = 0.5
+    init_metallic: float = 0.2
+    init_roughness: float = 0.4
+    range_prior: float = 1e-3
+    """Weak pull of metallic toward 0 or 1 (m (1 − m)) and of every raw value toward 0."""
+
+
+@dataclass
+class LightConfig:
+    """Direct light (explicit lat-long HDR map) and indirect light."""
+
+    env_height: list[int] = _field(default_factory=lambda: [64, 128])
+    """Env-map heights coarse to fine (width = 2 × height); upsampled at ``upsample_at``."""
+    upsample_at: float = 0.3
+    """Fraction of ``iters`` at which the env map moves to the next resolution."""
+    indirect: Literal["auto", "splitsum", "off"] = "auto"
+    """Radiance of secondary rays that hit the object: split-sum estimate of the outgoing
+    radiance at the hit from the current material and env map (auto: on when any secondary ray
+    of the cache hits the mesh), or off (black)."""
+    env_smooth: float = 1e-4
+    """Weight of a total-variation prior on the log env map (fills directions never seen)."""
+
+
+@dataclass
+class RenderConfig:
+    """Monte Carlo rendering equation on the surface."""
+
+    spp_cos: int = 8
+    """Cosine-weighted samples per pixel (training)."""
+    spp_ggx: int = 8
+    """GGX visible-normal samples per pixel (training)."""
+    spp_env: int = 8
+    """Env-map importance samples per pixel (training)."""
+    eval_scale: int = 8
+    """Evaluation renders use ``eval_scale`` times the training samples."""
+    decorrelate: bool = True
+    """Loss on two independent estimates per pixel, (p1 − t)(p2 − t), instead of (p − t)²:
+    no Monte Carlo variance term in the expected loss (costs twice the samples)."""
+    visibility: bool = True
+    """Cast every secondary ray against the mesh (shadows / indirect)."""
+
+
+@dataclass
+class MaterialConfig:
+    """Stage 2: materials and lights on a fixed mesh."""
+
+    iters: int = 1500
+    batch: int = 2048
+    """Object pixels per step."""
+    bg_batch: int = 4096
+    """Background pixels per step (they train the env map directly)."""
+    lr_material: float = 0.03
+    lr_env: float = 0.03
+    lr_decay: float = 0.1
+    """Final learning rate as a fraction of the initial one (exponential decay)."""
+    max_pixels: int = 400000
+    """At most this many object pixels are cached (a random subset of all training pixels)."""
+    seed: int = 0
+    threads: int = 0
+    """torch CPU threads (0 = torch's default); 1 is fastest on a busy shared CPU."""
+    field: FieldConfig = _field(default_factory=FieldConfig)
+    light: LightConfig = _field(default_factory=LightConfig)
+    render: RenderConfig = _field(default_factory=RenderConfig)
+    texture_size: int = 1024
+    """Side of the exported albedo / metallic-roughness textures (pixels)."""
+    eval_views: int = -1
+    """Test views rendered for the metrics at the end (-1 = all, 0 = none)."""
+    checkpoint_every: int = 300
+    log_every: int = 50
+
+    def validate(self) -> None:
+        """Check value ranges; raise ConfigError naming the key and the fix."""
+        if self.iters < 0:
+            raise ConfigError(f"material.iters={self.iters} must be >= 0")
+        if self.batch < 1 or self.bg_batch < 0:
+            raise ConfigError("material.batch must be >= 1 and material.bg_batch >= 0")
+        r = self.render
+        if min(r.spp_cos, r.spp_ggx, r.spp_env) < 0 or r.spp_cos + r.spp_ggx + r.spp_env < 1:
+            raise ConfigError("material.render.spp_* must be >= 0 with at least one sample",
+                              fix="e.g. render.spp_cos=8 render.spp_ggx=8")
+        if not self.light.env_height or any(h < 4 for h in self.light.env_height):
+            raise ConfigError(f"material.light.env_height={self.light.env_height} needs "
+                              "heights >= 4", fix="e.g. light.env_height=[64,128]")
+        if self.texture_size < 16:
+            raise ConfigError(f"material.texture_size={self.texture_size} must be >= 16")

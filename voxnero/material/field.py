@@ -1,0 +1,133 @@
+"""Material fields over the fixed surface: albedo (linear RGB), metallic, perceptual roughness.
+
+Two explicit parameterisations (``material.field.kind``):
+
+* ``vertex``: 5 raw values per mesh vertex, interpolated barycentrically at a hit; smoothness is
+  the mean squared difference of the activated values across mesh edges.
+* ``grid``: a dense ``R³`` grid of raw values over the unit cube ``[-1, 1]³``, trilinear
+  (``grid_sample``, ``align_corners=True``); smoothness is the mean squared difference of
+  neighbouring cells (total variation, squared).
+
+Raw values pass through a sigmoid: albedo in (0, 1)³, metallic in (0, 1), roughness r in
+(0, 1) (GGX alpha = r², see ``voxnero.render.brdf``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from voxnero.material.surface import Geometry
+
+
+def _logit(p: float) -> float:
+    p = min(max(p, 1e-4), 1 - 1e-4)
+    return math.log(p / (1 - p))
+
+
+def activate(raw: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Raw (..., 5) -> albedo (..., 3), metallic (..., 1), roughness (..., 1), all sigmoid."""
+    s = torch.sigmoid(raw)
+    return s[..., 0:3], s[..., 3:4], s[..., 4:5]
+
+
+def _init_raw(albedo: float, metallic: float, roughness: float) -> list[float]:
+    return [_logit(albedo)] * 3 + [_logit(metallic), _logit(roughness)]
+
+
+class VertexMaterial(nn.Module):
+    """Per-vertex material parameters on a mesh."""
+
+    def __init__(self, geom: Geometry, albedo: float = 0.5, metallic: float = 0.2,
+                 roughness: float = 0.4):
+        """Args:
+            geom: the mesh (its triangles define the interpolation and the edges).
+            albedo, metallic, roughness: initial values everywhere.
+        """
+        super().__init__()
+        self.geom = geom
+        init = torch.tensor(_init_raw(albedo, metallic, roughness))
+        self.raw = nn.Parameter(init.repeat(geom.n_vertices, 1))
+        f = geom.triangles
+        e = torch.cat([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        e = torch.unique(torch.sort(e, dim=1).values, dim=0)
+        self.register_buffer("edges", e, persistent=False)
+
+    def forward(self, tri: Tensor, bary: Tensor, x: Tensor | None = None
+                ) -> tuple[Tensor, Tensor, Tensor]:
+        """Material at surface points.
+
+        Args:
+            tri: (N,) triangle indices (>= 0); bary: (N, 3) barycentrics; x: unused.
+
+        Returns:
+            albedo (N, 3), metallic (N, 1), roughness (N, 1).
+        """
+        return activate(self.geom.interpolate(self.raw, tri, bary))
+
+    def smoothness(self, sample: int = 65536, generator: torch.Generator | None = None
+                   ) -> Tensor:
+        """Mean over (a random subset of) edges of the squared difference of activated values."""
+        e = self.edges
+        if sample and e.shape[0] > sample:
+            e = e[torch.randint(0, e.shape[0], (sample,), generator=generator)]
+        s = torch.sigmoid(self.raw)
+        return ((s[e[:, 0]] - s[e[:, 1]]) ** 2).sum(-1).mean()
+
+    def vertex_values(self) -> Tensor:
+        """(V, 5) activated values at the vertices (albedo, metallic, roughness)."""
+        return torch.sigmoid(self.raw.detach())
+
+
+class GridMaterial(nn.Module):
+    """Dense trilinear grid of material parameters over the unit cube."""
+
+    def __init__(self, res: int = 48, albedo: float = 0.5, metallic: float = 0.2,
+                 roughness: float = 0.4, bound: float = 1.0):
+        """Args:
+            res: grid resolution per axis.
+            albedo, metallic, roughness: initial values everywhere.
+            bound: the grid covers ``[-bound, bound]³`` (unit frame).
+        """
+        super().__init__()
+        init = torch.tensor(_init_raw(albedo, metallic, roughness))
+        self.grid = nn.Parameter(init.view(1, 5, 1, 1, 1).repeat(1, 1, res, res, res))
+        self.bound = bound
+
+    def raw_at(self, x: Tensor) -> Tensor:
+        """(N, 3) points -> (N, 5) raw values (trilinear)."""
+        # grid_sample's (x, y, z) index the tensor axes (W, H, D): the grid is stored (z, y, x)
+        g = (x / self.bound).view(1, -1, 1, 1, 3)
+        out = F.grid_sample(self.grid, g, mode="bilinear", padding_mode="border",
+                            align_corners=True)
+        return out.view(5, -1).T
+
+    def forward(self, tri: Tensor, bary: Tensor, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Material at surface points ``x`` (N, 3); tri/bary unused. Returns as VertexMaterial."""
+        return activate(self.raw_at(x))
+
+    def smoothness(self, sample: int = 0, generator: torch.Generator | None = None) -> Tensor:
+        """Mean squared difference of neighbouring activated cells along each axis."""
+        s = torch.sigmoid(self.grid)
+        return sum(((s.narrow(d, 1, s.shape[d] - 1) - s.narrow(d, 0, s.shape[d] - 1)) ** 2)
+                   .sum(1).mean() for d in (2, 3, 4))
+
+
+def make_field(kind: str, geom: Geometry, grid_res: int, albedo: float, metallic: float,
+               roughness: float) -> VertexMaterial | GridMaterial:
+    """The material field named by ``material.field.kind``."""
+    if kind == "vertex":
+        return VertexMaterial(geom, albedo, metallic, roughness)
+    return GridMaterial(grid_res, albedo, metallic, roughness)
+
+
+def vertex_materials(field: VertexMaterial | GridMaterial, geom: Geometry
+                     ) -> tuple[Tensor, Tensor, Tensor]:
+    """Material at every mesh vertex (for texture baking): albedo (V, 3), metallic, roughness."""
+    with torch.no_grad():
+        if isinstance(field, VertexMaterial):
+            return activate(field.raw)
+        return activate(field.raw_at(geom.vertices))

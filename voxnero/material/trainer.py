@@ -1,0 +1,230 @@
+"""Stage-2 training loop: materials and env map on the fixed mesh.
+
+Owns the loop, the optimisers, the learning-rate schedule, checkpoints (``checkpoint.pt``,
+resumed automatically) and the progress bar; the physics lives in
+:mod:`voxnero.material.render`. Loss, per step::
+
+    mean |srgb(clip(L_pred)) - srgb(L_target)|²  over object pixels (Monte Carlo L_pred)
+  + mean |srgb(clip(env(d))) - srgb(L_target)|²  over background pixels (environment at infinity)
+  + smooth · material smoothness + range_prior · (m (1 − m) + raw²) + env_smooth · TV(log env)
+
+Both sides are compared in sRGB after clipping the prediction to [0, 1], as the 8-bit
+training images were made (clipped highlights give no gradient above 1).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+
+from voxnero.io.color import linear_to_srgb
+from voxnero.material.config import MaterialConfig
+from voxnero.material.field import make_field
+from voxnero.material.lights import EnvLight, IndirectLight, init_from_background
+from voxnero.material.render import Strategies, env_sampler, shade
+from voxnero.material.surface import Geometry, SurfaceCache
+from voxnero.render.sampling import sample_cosine
+
+
+def srgb_clipped(lin: torch.Tensor) -> torch.Tensor:
+    """sRGB encoding of linear values clipped to [0, 1] (how the 8-bit inputs were made)."""
+    return linear_to_srgb(lin.clamp(0.0, 1.0))
+
+
+def needs_indirect(geom: Geometry, cache: SurfaceCache, n_points: int = 4096,
+                   generator: torch.Generator | None = None) -> float:
+    """Fraction of cosine-distributed secondary rays from cached points that hit the mesh.
+
+    Returns:
+        A fraction in [0, 1]: about 0 for a convex object.
+    """
+    N = cache.x.shape[0]
+    if N == 0:
+        return 0.0
+    idx = torch.randint(0, N, (min(n_points, N),), generator=generator)
+    u = torch.rand((idx.shape[0], 2), generator=generator)
+    l, _ = sample_cosine(u, cache.n[idx])
+    o = geom.spawn(cache.tri[idx], cache.x[idx], l)
+    return float(geom.occluded(o, l).float().mean())
+
+
+class MaterialTrainer:
+    """Fits the material field and the env map to the cached training pixels."""
+
+    def __init__(self, cfg: MaterialConfig, geom: Geometry, cache: SurfaceCache,
+                 log: Callable[[str], None] = print, device: torch.device | str = "cpu",
+                 env_init: torch.Tensor | None = None):
+        """Args:
+            cfg: resolved stage-2 config.
+            geom: fixed mesh (unit frame).
+            cache: primary hits and background pixels (:func:`surface.build_cache`).
+            log: where progress lines go.
+            device: torch device of the parameters (Open3D casts stay on the CPU).
+            env_init: (H, W, 3) linear map to start from (default: background pixels averaged
+                into a map of height ``light.env_height[0]``).
+        """
+        self.cfg, self.geom, self.cache, self.log = cfg, geom, cache, log
+        self.device = torch.device(device)
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        fc = cfg.field
+        self.field = make_field(fc.kind, geom, fc.grid_res, fc.init_albedo, fc.init_metallic,
+                                fc.init_roughness)
+        self.heights = list(cfg.light.env_height)
+        self.level = 0
+        if env_init is None:
+            env_init = init_from_background(cache.bg_dirs, cache.bg_rgb, self.heights[0])
+        self.env = EnvLight(env_init)
+        self.spp = Strategies(cfg.render.spp_cos, cfg.render.spp_ggx, cfg.render.spp_env)
+        frac = needs_indirect(geom, cache, generator=self.gen) if cfg.render.visibility else 0.0
+        mode = cfg.light.indirect
+        self.use_indirect = mode == "splitsum" or (mode == "auto" and frac > 1e-3)
+        self.decisions = {"secondary_hit_fraction": frac, "indirect": self.use_indirect,
+                          "env_sampling": env_sampler(torch.ones(4, 8, 3)) is not None}
+        log(f"[material] secondary rays hitting the object: {100 * frac:.2f} % -> indirect "
+            f"light {'on' if self.use_indirect else 'off'}; env-map importance sampling "
+            f"{'on' if self.decisions['env_sampling'] else 'unavailable (shading core)'}")
+        self.step = 0
+        self._make_optimisers()
+
+    # ------------------------------------------------------------------ setup
+    def _make_optimisers(self) -> None:
+        self.opt_mat = torch.optim.Adam(self.field.parameters(), lr=self.cfg.lr_material)
+        self.opt_env = torch.optim.Adam(self.env.parameters(), lr=self.cfg.lr_env)
+
+    def _lr_factor(self) -> float:
+        return self.cfg.lr_decay ** (self.step / max(self.cfg.iters, 1))
+
+    def _maybe_upsample(self) -> None:
+        if self.level + 1 < len(self.heights) and \
+                self.step >= self.cfg.light.upsample_at * self.cfg.iters:
+            self.level += 1
+            self.env = self.env.upsampled(self.heights[self.level])
+            self.opt_env = torch.optim.Adam(self.env.parameters(), lr=self.cfg.lr_env)
+            self.log(f"[material] step {self.step}: env map -> {self.env.height} x "
+                     f"{2 * self.env.height}")
+
+    # ------------------------------------------------------------------ one step
+    def loss_terms(self) -> dict[str, torch.Tensor]:
+        """Losses of one random batch (object pixels, background pixels, priors)."""
+        cfg, c = self.cfg, self.cache
+        idx = torch.randint(0, c.x.shape[0], (min(cfg.batch, c.x.shape[0]),), generator=self.gen)
+        img = self.env.image()
+        indirect = IndirectLight(img) if self.use_indirect else None
+        sampler = env_sampler(img) if self.spp.env else None
+        target = linear_to_srgb(c.rgb[idx])
+        if cfg.render.decorrelate:
+            # two independent estimates of the same pixels: E[(p1 - t)(p2 - t)] = (E p - t)²
+            # has no Monte Carlo variance term, which would otherwise favour materials whose
+            # estimate is less noisy (e.g. lower roughness)
+            idx2 = torch.cat([idx, idx])
+            pred = shade(self.geom, self.field, img, c.tri[idx2], c.bary[idx2], c.x[idx2],
+                         c.n[idx2], c.v[idx2], self.spp, indirect, sampler,
+                         cfg.render.visibility, self.gen)
+            p1, p2 = srgb_clipped(pred).chunk(2)
+            obj = ((p1 - target) * (p2 - target)).mean()
+            mse = ((0.5 * (p1 + p2) - target) ** 2).mean().detach()
+        else:
+            pred = shade(self.geom, self.field, img, c.tri[idx], c.bary[idx], c.x[idx],
+                         c.n[idx], c.v[idx], self.spp, indirect, sampler,
+                         cfg.render.visibility, self.gen)
+            obj = ((srgb_clipped(pred) - target) ** 2).mean()
+            mse = obj.detach()
+        terms = {"object": obj}
+        self._mse = float(mse)
+        if cfg.bg_batch and c.bg_dirs.shape[0]:
+            j = torch.randint(0, c.bg_dirs.shape[0], (cfg.bg_batch,), generator=self.gen)
+            bg = self.env.lookup(c.bg_dirs[j])
+            terms["background"] = ((srgb_clipped(bg) - linear_to_srgb(c.bg_rgb[j])) ** 2).mean()
+        fc = cfg.field
+        if fc.smooth:
+            terms["smooth"] = fc.smooth * self.field.smoothness(generator=self.gen)
+        if fc.range_prior:
+            a, m, r = self.field(c.tri[idx], c.bary[idx], c.x[idx])
+            terms["range"] = fc.range_prior * (m * (1 - m)).mean()
+        if cfg.light.env_smooth:
+            terms["env_smooth"] = cfg.light.env_smooth * self.env.smoothness()
+        return terms
+
+    def train_step(self) -> dict[str, float]:
+        """One optimisation step; returns the loss terms as floats."""
+        self._maybe_upsample()
+        f = self._lr_factor()
+        for opt, lr in ((self.opt_mat, self.cfg.lr_material), (self.opt_env, self.cfg.lr_env)):
+            for g in opt.param_groups:
+                g["lr"] = lr * f
+        terms = self.loss_terms()
+        loss = sum(terms.values())
+        self.opt_mat.zero_grad(set_to_none=True)
+        self.opt_env.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt_mat.step()
+        self.opt_env.step()
+        self.step += 1
+        out = {k: float(v.detach()) for k, v in terms.items()}
+        out["loss"] = float(loss.detach())
+        return out
+
+    # ------------------------------------------------------------------ loop
+    def fit(self, ckpt: Path | None = None, progress: bool = True) -> dict[str, float]:
+        """Train until ``cfg.iters`` steps (resuming from ``ckpt`` if it exists).
+
+        Returns:
+            Summary: final losses, steps, seconds.
+        """
+        from tqdm import tqdm
+
+        if ckpt is not None and Path(ckpt).exists():
+            self.load(ckpt)
+            self.log(f"[material] resumed from {ckpt} at step {self.step}")
+        t0 = time.perf_counter()
+        last: dict[str, float] = {}
+        bar = tqdm(total=self.cfg.iters, initial=self.step, disable=not progress,
+                   desc="material", dynamic_ncols=True, mininterval=1.0)
+        ema = None
+        while self.step < self.cfg.iters:
+            last = self.train_step()
+            ema = self._mse if ema is None else 0.95 * ema + 0.05 * self._mse
+            bar.update(1)
+            if self.step % self.cfg.log_every == 0 or self.step == self.cfg.iters:
+                psnr = -10 * math.log10(max(ema, 1e-12))
+                bar.set_postfix(obj_psnr=f"{psnr:.2f}", bg=f"{last.get('background', 0):.2e}")
+                if not progress:
+                    self.log(f"[material] step {self.step}/{self.cfg.iters} object PSNR(ema) "
+                             f"{psnr:.2f} dB, background mse {last.get('background', 0):.2e}")
+            if ckpt is not None and self.cfg.checkpoint_every and \
+                    self.step % self.cfg.checkpoint_every == 0:
+                self.save(ckpt)
+        bar.close()
+        if ckpt is not None:
+            self.save(ckpt)
+        last["seconds"] = time.perf_counter() - t0
+        last["steps"] = self.step
+        return last
+
+    # ------------------------------------------------------------------ checkpoints
+    def save(self, path: Path) -> None:
+        """Write a checkpoint (atomically)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        state = {"step": self.step, "level": self.level, "field": self.field.state_dict(),
+                 "env": self.env.log_rad.detach().clone(),
+                 "opt_mat": self.opt_mat.state_dict(), "opt_env": self.opt_env.state_dict(),
+                 "gen": self.gen.get_state()}
+        tmp = path.with_suffix(".tmp")
+        torch.save(state, tmp)
+        tmp.replace(path)
+
+    def load(self, path: Path) -> None:
+        """Restore a checkpoint written by :meth:`save`."""
+        state = torch.load(path, map_location="cpu", weights_only=True)
+        self.step, self.level = int(state["step"]), int(state["level"])
+        self.field.load_state_dict(state["field"])
+        self.env = EnvLight(torch.exp(state["env"]))
+        self._make_optimisers()
+        self.opt_mat.load_state_dict(state["opt_mat"])
+        self.opt_env.load_state_dict(state["opt_env"])
+        self.gen.set_state(state["gen"])
