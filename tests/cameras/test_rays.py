@@ -157,3 +157,23 @@ def test_random_pixels_centres_jitter_and_reproducibility():
     assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
     frac = a[1] - a[1].floor()
     assert frac.min() >= 0 and frac.max() < 1 and frac.std() > 0.2  # ~U[0,1): sd 0.289
+
+
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_rays_on_device_match_cpu(device):
+    cams = _cams(seed=7)
+    g = torch.Generator(device=device).manual_seed(0)
+    cam, pix = random_pixels(1000, 3, cams.height, cams.width, generator=g, jitter=True)
+    assert cam.device.type == device and pix.device.type == device
+    on = cams.to(device)
+    o, d = pixel_rays(on, cam, pix)
+    o_ref, d_ref = pixel_rays(cams, cam.cpu(), pix.cpu())
+    torch.testing.assert_close(d.cpu(), d_ref, atol=1e-5, rtol=0)
+    torch.testing.assert_close(o.cpu(), o_ref, atol=1e-5, rtol=0)
+    oi, di = image_rays(on, 1, downscale=2)
+    assert di.device.type == device and di.shape == (15, 20, 3)
+    uv, _ = on.project(o + 2.0 * d, 0)
+    assert uv.device.type == device
