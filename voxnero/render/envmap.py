@@ -194,3 +194,378 @@ def rotate_dirs(d: Tensor, up: str = "z", yaw_deg: float = 0.0) -> Tensor:
     Rz = torch.tensor([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
     M = (Rz @ R).to(d.dtype).to(d.device)
     return d @ M.T
+
+
+# ----------------------------------------------------------------------------------------------
+# Filtering: solid-angle-weighted mip chain, roughness lookup, SH irradiance (differentiable)
+# ----------------------------------------------------------------------------------------------
+
+
+def _theta_overlap(h_coarse: int, h_fine: int, device=None) -> Tensor:
+    """(Hc, Hf) row weights: solid angle of the overlap of coarse and fine row cells."""
+    ec = _row_edges(h_coarse, device=device)
+    ef = _row_edges(h_fine, device=device)
+    lo = torch.maximum(ec[:-1, None], ef[None, :-1])
+    hi = torch.minimum(ec[1:, None], ef[None, 1:])
+    w = (torch.cos(lo) - torch.cos(hi)).clamp_min(0.0)
+    return w / w.sum(1, keepdim=True)
+
+
+def _phi_overlap(w_coarse: int, w_fine: int, device=None) -> Tensor:
+    """(Wc, Wf) column weights: overlap length of coarse and fine column cells."""
+    ec = torch.arange(w_coarse + 1, dtype=torch.float64, device=device) / w_coarse
+    ef = torch.arange(w_fine + 1, dtype=torch.float64, device=device) / w_fine
+    lo = torch.maximum(ec[:-1, None], ef[None, :-1])
+    hi = torch.minimum(ec[1:, None], ef[None, 1:])
+    w = (hi - lo).clamp_min(0.0)
+    return w / w.sum(1, keepdim=True)
+
+
+def resample_area(img: Tensor, H: int, W: int) -> Tensor:
+    """Solid-angle-weighted area resampling of an equirectangular map to (H, W).
+
+    Each output cell is the solid-angle-weighted mean of the input cells it overlaps, so the
+    integral of radiance over the sphere is preserved exactly. Differentiable w.r.t. ``img``.
+
+    Args:
+        img: (Hi, Wi, C) map.
+        H, W: output size (H >= 2).
+
+    Returns:
+        (H, W, C) map.
+    """
+    At = _theta_overlap(H, img.shape[0], img.device).to(img.dtype)
+    Ap = _phi_overlap(W, img.shape[1], img.device).to(img.dtype)
+    return torch.einsum("ch,hwk,dw->cdk", At, img, Ap)
+
+
+def mip_chain(img: Tensor, levels: int | None = None) -> list[Tensor]:
+    """Area (solid-angle) weighted mip pyramid of an equirectangular map.
+
+    Level k has H_k = (H_{k-1} - 1) // 2 + 1 rows (pole rows kept) and W_k = W_{k-1} // 2
+    columns, down to H = 2 or ``levels`` levels. Every level integrates to the same total
+    over the sphere. Differentiable (for learnable maps).
+
+    Args:
+        img: (H, W, C) linear radiance (or log-radiance made linear by the caller).
+        levels: number of levels including level 0 (default: as many as possible).
+
+    Returns:
+        list of (H_k, W_k, C) tensors, level 0 = ``img``.
+    """
+    chain = [img]
+    while levels is None or len(chain) < levels:
+        h, w = chain[-1].shape[:2]
+        hc, wc = (h - 1) // 2 + 1, max(w // 2, 1)
+        if h <= 2 or hc < 2:
+            break
+        chain.append(resample_area(chain[-1], hc, wc))
+    return chain
+
+
+def roughness_to_level(roughness: Tensor, base_height: int, n_levels: int) -> Tensor:
+    """Mip level for a GGX lobe: level = clamp(log2(2 alpha / dtheta_0), 0, L - 1).
+
+    alpha = max(r^2, ALPHA_MIN) is (about) the angular half-width of the half-vector lobe, so
+    the reflected lobe is ~2 alpha wide; level k's cells are dtheta_0 2^k wide with
+    dtheta_0 = pi / (H_0 - 1) (0.7 deg at H = 256). E.g. H = 256: r = 0.1 -> 0.7, r = 0.3 -> 3.9,
+    r = 1 -> 7.3 (clamped to the coarsest level).
+
+    Args:
+        roughness: (...) or (..., 1) perceptual roughness.
+        base_height: H_0 of level 0.
+        n_levels: number of levels L.
+
+    Returns:
+        fractional level, same shape as ``roughness``.
+    """
+    from voxnero.render.brdf import roughness_to_alpha
+
+    alpha = roughness_to_alpha(roughness)
+    dtheta0 = math.pi / (base_height - 1)
+    return torch.log2(2.0 * alpha / dtheta0).clamp(0.0, float(n_levels - 1))
+
+
+def lookup_rough(chain: list[Tensor], d: Tensor, roughness: Tensor) -> Tensor:
+    """Roughness-filtered lookup: linear blend of the two mip levels around
+    ``roughness_to_level(roughness)``. Differentiable w.r.t. the chain, d and roughness.
+
+    Args:
+        chain: output of ``mip_chain``.
+        d: (..., 3) directions (e.g. reflected view directions).
+        roughness: (..., 1) perceptual roughness.
+
+    Returns:
+        (..., C) filtered radiance (level 0 exactly at roughness <= 1 / sqrt(...)).
+    """
+    L = len(chain)
+    lev = roughness_to_level(roughness, chain[0].shape[0], L)  # (..., 1)
+    out = 0.0
+    for k, img in enumerate(chain):
+        w = (1.0 - (lev - k).abs()).clamp_min(0.0)
+        if L == 1:
+            w = torch.ones_like(lev)
+        out = out + w * envmap_lookup(img, d)
+    return out
+
+
+_SH_BAND_GAIN = (math.pi, 2.0 * math.pi / 3.0, math.pi / 4.0)
+
+
+def sh9_project(img: Tensor) -> Tensor:
+    """Project a map onto the 9 real SH of bands 0-2 (pixel-cell quadrature).
+
+    Args:
+        img: (H, W, C) linear radiance.
+
+    Returns:
+        (9, C) coefficients c_lm = sum L(d) y_lm(d) dOmega (``encoding.sh_basis`` ordering).
+    """
+    from voxnero.render.encoding import sh_basis
+
+    H, W = img.shape[:2]
+    Y = sh_basis(pixel_dirs(H, W, device=img.device, dtype=img.dtype), 2)  # (H, W, 9)
+    om = pixel_solid_angles(H, W, device=img.device, dtype=img.dtype)
+    return torch.einsum("hwk,hw,hwc->kc", Y, om, img)
+
+
+def sh9_irradiance(coeffs: Tensor, n: Tensor) -> Tensor:
+    """Irradiance E(n) = integral L(l) max(n.l, 0) dl from order-2 SH (Ramamoorthi-Hanrahan).
+
+    Clamped at 0 (order-2 SH of a very peaked light can ring negative). Diffuse outgoing
+    radiance is albedo / pi * E.
+
+    Args:
+        coeffs: (9, C) from ``sh9_project``.
+        n: (..., 3) unit normals.
+
+    Returns:
+        (..., C) irradiance (W m^-2 sr^0 in radiance units times sr).
+    """
+    from voxnero.render.encoding import sh_basis
+
+    Y = sh_basis(n.to(coeffs.dtype), 2)
+    gain = torch.tensor([_SH_BAND_GAIN[0]] + [_SH_BAND_GAIN[1]] * 3 + [_SH_BAND_GAIN[2]] * 5,
+                        dtype=coeffs.dtype, device=coeffs.device)
+    return ((Y * gain) @ coeffs).clamp_min(0.0)
+
+
+def luminance(rgb: Tensor) -> Tensor:
+    """Rec. 709 luminance of linear RGB: (..., 3) -> (...)."""
+    return rgb[..., 0] * 0.2126 + rgb[..., 1] * 0.7152 + rgb[..., 2] * 0.0722
+
+
+# ----------------------------------------------------------------------------------------------
+# A fixed HDR environment map
+# ----------------------------------------------------------------------------------------------
+
+#: roughness nodes of ``EnvMap.prefiltered`` (linear interpolation in between)
+PREFILTER_ROUGHNESS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.65, 0.8, 1.0)
+
+
+class EnvMap:
+    """A fixed linear HDR equirectangular environment map, +Z up (see the module docstring).
+
+    Lookups, luminance importance sampling (pdf per steradian), GGX-prefiltered radiance for the
+    split-sum approximation and cosine-convolved irradiance. ``up``/``yaw_deg`` re-orient the
+    map (``rotate_dirs``): all methods take and return *world* directions.
+
+    Args:
+        img: (H, W, 3) linear radiance (numpy or torch).
+        up: world up axis of the map ("z" default).
+        yaw_deg: rotation of the environment about its up axis.
+        device: torch device (default: that of ``img``).
+    """
+
+    def __init__(self, img, up: str = "z", yaw_deg: float = 0.0, device=None):
+        img = torch.as_tensor(img, dtype=torch.float32)
+        if device is not None:
+            img = img.to(device)
+        if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 2:
+            from voxnero.errors import DataError
+
+            raise DataError(f"env map must be (H, W, 3) with H >= 2, got {tuple(img.shape)}",
+                            fix="pass an equirectangular RGB image")
+        self.img = img.clamp_min(0.0)
+        self.up, self.yaw_deg = up, yaw_deg
+        eye = torch.eye(3, dtype=torch.float64)
+        self._M = rotate_dirs(eye, up, yaw_deg).T.to(torch.float32).to(img.device)  # world->map
+        self._identity = bool(torch.allclose(self._M.cpu(), torch.eye(3)))
+        self._sampler = None
+        self._prefilter = None
+        self._irr = None
+
+    # -- construction / io
+    @classmethod
+    def from_file(cls, path, up: str = "z", yaw_deg: float = 0.0, scale: float = 1.0,
+                  device=None) -> EnvMap:
+        """Read an ``.exr``/``.hdr`` map with ``voxnero.io.exr.read_envmap`` (times ``scale``)."""
+        from voxnero.io.exr import read_envmap
+
+        img = torch.from_numpy(read_envmap(path)) * scale
+        return cls(img, up=up, yaw_deg=yaw_deg, device=device)
+
+    def save(self, path) -> None:
+        """Write the map (in its own +Z-up frame) as a 32-bit float EXR."""
+        from voxnero.io.exr import write_exr
+
+        write_exr(path, self.img.detach().cpu().numpy(), half=False)
+
+    @property
+    def device(self) -> torch.device:
+        return self.img.device
+
+    def _to_map(self, d: Tensor) -> Tensor:
+        return d if self._identity else d @ self._M.to(d.dtype).T
+
+    def _to_world(self, d: Tensor) -> Tensor:
+        return d if self._identity else d @ self._M.to(d.dtype)
+
+    # -- queries
+    def lookup(self, d: Tensor) -> Tensor:
+        """Bilinear radiance along world directions d (..., 3) -> (..., 3)."""
+        return envmap_lookup(self.img, self._to_map(d))
+
+    __call__ = lookup
+
+    def _build_sampler(self) -> None:
+        H, W = self.img.shape[:2]
+        om = pixel_solid_angles(H, W, device=self.device, dtype=torch.float64)
+        lum = luminance(self.img.double()).clamp_min(0.0)
+        w = om * (lum + 1e-2 * (lum * om).sum() / (4.0 * math.pi) + 1e-12)
+        p = w / w.sum()
+        row = p.sum(1)
+        cond = p / row[:, None]
+        self._sampler = {
+            "p": p, "om": om,
+            "row_cdf": torch.cumsum(row, 0), "row": row,
+            "cond_cdf": torch.cumsum(cond, 1), "cond": cond,
+            "cos_edges": torch.cos(_row_edges(H, device=self.device)),
+        }
+
+    def sample(self, u: Tensor) -> tuple[Tensor, Tensor]:
+        """Sample directions proportionally to luminance x solid angle (piecewise constant).
+
+        Args:
+            u: (N, 2) uniforms in [0, 1).
+
+        Returns:
+            dirs (N, 3) world unit directions, pdf (N,) per steradian (matches ``pdf``).
+        """
+        if self._sampler is None:
+            self._build_sampler()
+        s = self._sampler
+        H, W = self.img.shape[:2]
+        u = u.to(torch.float64).clamp(0.0, 1.0 - 1e-12)
+        j = torch.searchsorted(s["row_cdf"], u[:, 0].contiguous(), right=True).clamp(max=H - 1)
+        lo = s["row_cdf"][j] - s["row"][j]
+        u0 = ((u[:, 0] - lo) / s["row"][j]).clamp(0.0, 1.0)
+        cdf = s["cond_cdf"][j]
+        i = torch.searchsorted(cdf, u[:, 1:2].contiguous(), right=True)[:, 0].clamp(max=W - 1)
+        pc = s["cond"][j, i]
+        u1 = ((u[:, 1] - (cdf.gather(1, i[:, None])[:, 0] - pc)) / pc).clamp(0.0, 1.0)
+        c_lo, c_hi = s["cos_edges"][j], s["cos_edges"][j + 1]
+        cos_t = (c_lo - u0 * (c_lo - c_hi)).clamp(-1.0, 1.0)
+        sin_t = torch.sqrt((1.0 - cos_t * cos_t).clamp_min(0.0))
+        phi = 2.0 * math.pi * (i.to(torch.float64) + u1) / W
+        d = torch.stack([sin_t * torch.sin(phi), sin_t * torch.cos(phi), cos_t], -1)
+        pdf = s["p"][j, i] / s["om"][j, i]
+        return self._to_world(d.float()), pdf.float()
+
+    def pdf(self, d: Tensor) -> Tensor:
+        """Pdf per steradian of ``sample`` at world directions d (..., 3) -> (...)."""
+        if self._sampler is None:
+            self._build_sampler()
+        s = self._sampler
+        H, W = self.img.shape[:2]
+        theta, phi = dir_to_theta_phi(self._to_map(d).to(torch.float64))
+        j = torch.floor(theta / (math.pi / (H - 1)) + 0.5).long().clamp(0, H - 1)
+        i = torch.floor(phi / (2.0 * math.pi) * W).long().clamp(0, W - 1)
+        return (s["p"][j, i] / s["om"][j, i]).to(d.dtype)
+
+    # -- filtered versions for the split-sum approximation
+    def _build_prefilter(self, n_samples: int = 64) -> None:
+        from voxnero.render.brdf import roughness_to_alpha
+        from voxnero.render.sampling import sample_ggx_vndf
+        from voxnero.render.splitsum import hammersley
+
+        H0, W0 = self.img.shape[:2]
+        chain = mip_chain(self.img)
+        u = hammersley(n_samples, torch.float32).to(self.device)
+        om0 = 4.0 * math.pi / (H0 * W0)
+        maps = [self.img]
+        for r in PREFILTER_ROUGHNESS[1:]:
+            lev = int(roughness_to_level(torch.tensor(r), H0, len(chain)).floor())
+            ho = max(16, (H0 - 1) // (2**lev) + 1)
+            wo = max(32, W0 // (2**lev))
+            n = pixel_dirs(ho, wo, device=self.device).reshape(-1, 1, 3)
+            a = float(roughness_to_alpha(torch.tensor(r)))
+            acc = torch.zeros(n.shape[0], 3, device=self.device)
+            wsum = torch.zeros(n.shape[0], 1, device=self.device)
+            nn_ = n.expand(-1, n_samples, 3).reshape(-1, 3)
+            for s0 in range(0, nn_.shape[0], 1 << 18):
+                nb = nn_[s0:s0 + (1 << 18)]
+                ub = u.repeat(n.shape[0], 1)[s0:s0 + (1 << 18)]
+                l, pdf = sample_ggx_vndf(ub, nb, nb, a)
+                cos = (l * nb).sum(-1).clamp_min(0.0)
+                # filtered importance sampling (Krivanek & Colbert 2008): mip level by pdf
+                lev_s = (0.5 * torch.log2(1.0 / (n_samples * pdf.clamp_min(1e-12) * om0)) + 1.0)
+                lev_s = lev_s.clamp(0.0, len(chain) - 1)[:, None]
+                val = 0.0
+                for k, img in enumerate(chain):
+                    wk = (1.0 - (lev_s - k).abs()).clamp_min(0.0)
+                    if bool((wk > 0).any()):
+                        val = val + wk * envmap_lookup(img, l)
+                idx = torch.arange(s0, s0 + nb.shape[0], device=self.device) // n_samples
+                acc.index_add_(0, idx, val * cos[:, None])
+                wsum.index_add_(0, idx, cos[:, None])
+            maps.append((acc / wsum.clamp_min(1e-12)).reshape(ho, wo, 3))
+        self._prefilter = maps
+
+    def prefiltered(self, d: Tensor, roughness: Tensor) -> Tensor:
+        """GGX-prefiltered radiance around direction d (n = v = d assumption, weighted by n.l).
+
+        Precomputed at ``PREFILTER_ROUGHNESS`` (first call: a few seconds on 2 cores) and
+        interpolated linearly in roughness; roughness 0 is the map itself.
+
+        Args:
+            d: (..., 3) world directions (usually the reflected view direction).
+            roughness: (..., 1) perceptual roughness.
+
+        Returns:
+            (..., 3) radiance.
+        """
+        if self._prefilter is None:
+            self._build_prefilter()
+        nodes = torch.tensor(PREFILTER_ROUGHNESS, dtype=d.dtype, device=d.device)
+        r = roughness.clamp(0.0, 1.0)
+        dm = self._to_map(d)
+        k = (torch.searchsorted(nodes, r.contiguous(), right=True) - 1).clamp(0, len(nodes) - 2)
+        r0, r1 = nodes[k], nodes[k + 1]
+        t = ((r - r0) / (r1 - r0)).clamp(0.0, 1.0)
+        out = 0.0
+        for idx, img in enumerate(self._prefilter):
+            w = torch.where(k == idx, 1.0 - t, torch.zeros_like(t))
+            w = w + torch.where(k + 1 == idx, t, torch.zeros_like(t))
+            if bool((w > 0).any()):
+                out = out + w * envmap_lookup(img, dm)
+        return out
+
+    def irradiance(self, n: Tensor) -> Tensor:
+        """Cosine-convolved irradiance E(n) = integral L(l) max(n.l, 0) dl (exact convolution of
+        a 64 x 128 area-downsampled copy, tabulated at 32 x 64 and looked up bilinearly).
+
+        Args:
+            n: (..., 3) world unit normals.
+
+        Returns:
+            (..., 3) irradiance; diffuse outgoing radiance is albedo / pi * E.
+        """
+        if self._irr is None:
+            src = resample_area(self.img.double(), 64, 128)
+            ds = pixel_dirs(64, 128, device=self.device, dtype=torch.float64).reshape(-1, 3)
+            om = pixel_solid_angles(64, 128, device=self.device, dtype=torch.float64).reshape(-1)
+            no = pixel_dirs(32, 64, device=self.device, dtype=torch.float64).reshape(-1, 3)
+            cos = (no @ ds.T).clamp_min(0.0)
+            self._irr = (cos @ (src.reshape(-1, 3) * om[:, None])).reshape(32, 64, 3).float()
+        return envmap_lookup(self._irr, self._to_map(n))
