@@ -94,3 +94,43 @@ def test_missing_split_file(tmp_path):
     make_blender(tmp_path, n={"train": 1})
     with pytest.raises(DataError, match=r"split file not found \(have \['transforms_train.json'"):
         load_blender(tmp_path, splits=("val",))
+
+
+def test_ngp_distortion_is_removed(tmp_path):
+    """With k1, k2, p1, p2 the loaded pixel q shows the photo at the distorted position
+    distort(q) (COLMAP/OpenCV polynomial, computed here independently)."""
+    from voxnero.io.color import srgb_to_linear
+
+    make_blender(tmp_path, n={"train": 2})
+    k1, k2, p1, p2 = -0.4, 0.1, 0.003, -0.002
+    meta = json.loads((tmp_path / "transforms_train.json").read_text())
+    meta.update(k1=k1, k2=k2, p1=p1, p2=p2)
+    (tmp_path / "transforms_train.json").write_text(json.dumps(meta))
+    sc = load_blender(tmp_path)
+    assert sc.meta["undistorted"]
+    from PIL import Image
+
+    raw = srgb_to_linear(np.asarray(Image.open(tmp_path / "train" / "r_0.png")) / 255.0)
+    fx, fy, cx, cy, w, h = 48.0, 46.0, 21.0, 15.5, 40, 32
+    xs, ys = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5, indexing="xy")
+    u, v = (xs - cx) / fx, (ys - cy) / fy
+    r2 = u * u + v * v
+    rad = k1 * r2 + k2 * r2 * r2
+    xd = (u + u * rad + 2 * p1 * u * v + p2 * (r2 + 2 * u * u)) * fx + cx
+    yd = (v + v * rad + 2 * p2 * u * v + p1 * (r2 + 2 * v * v)) * fy + cy
+    assert np.abs(xd - xs).max() > 1.0
+    # pixels whose 4 bilinear neighbours in the photo share one colour must show that colour
+    i0 = np.floor(xd - 0.5).astype(int)
+    j0 = np.floor(yd - 0.5).astype(int)
+    ok = (i0 >= 0) & (j0 >= 0) & (i0 + 1 < w) & (j0 + 1 < h)
+    got = sc.split("train").images[0].numpy()
+    checked = 0
+    for j, i in zip(*np.nonzero(ok), strict=True):
+        a, b = i0[j, i], j0[j, i]
+        nb = raw[b:b + 2, a:a + 2].reshape(-1, 3)
+        if np.ptp(nb, axis=0).max() == 0:
+            np.testing.assert_allclose(got[j, i], nb[0], atol=1e-5)
+            checked += 1
+    assert checked > 0.7 * w * h
+    # the sphere's edge really moved: the loaded image differs from the photo somewhere
+    assert np.abs(got - raw).max() > 0.05

@@ -9,6 +9,10 @@ Defaults: ``fl_y = fl_x`` (square pixels), ``cx = w / 2``, ``cy = h / 2``, ``w, 
 image. The principal point is taken in the project's pixel frame (pixel centre +0.5), which is
 the NeRF-synthetic / Blender convention (centre of the image at ``w / 2``).
 
+Lens distortion given as instant-ngp ``k1, k2, p1, p2`` (OpenCV polynomial) is removed at load
+by resampling onto the pinhole camera, exactly as for COLMAP's OPENCV model
+(:func:`voxnero.data.colmap.undistort_images`); ``k3``/``k4`` or ``is_fisheye`` are refused.
+
 Poses become OpenCV by ``c2w_gl @ diag(1, -1, -1, 1)``. The world is Blender's, **+Z up**.
 RGBA images are composited over black (``white_bg=False``) or white, in linear space, and
 their alpha is kept in ``Split.alpha``. With ``eval_extras``, ``<split>_mask/<name>.png`` and
@@ -23,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from voxnero.cameras.cameras import opengl_to_opencv
 from voxnero.data.scene import (
@@ -85,7 +90,7 @@ def _parse_split(root: Path, split: str) -> dict[str, Any]:
     if not frames:
         raise DataError(f"split {split!r} is empty (no frames)", path=jpath,
                         fix="add frames or do not ask for this split")
-    paths, names, Ks, c2ws, sizes = [], [], [], [], []
+    paths, names, Ks, c2ws, sizes, dists = [], [], [], [], [], []
     for i, fr in enumerate(frames):
         if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
             raise DataError(f"frame {i} lacks 'file_path' or 'transform_matrix'", path=jpath,
@@ -119,8 +124,19 @@ def _parse_split(root: Path, split: str) -> dict[str, Any]:
         if not all(math.isfinite(v) for v in (fx, fy, cx, cy)) or fx <= 0 or fy <= 0:
             raise DataError(f"frame {i}: invalid intrinsics fx={fx} fy={fy} cx={cx} cy={cy}",
                             path=jpath, fix="focal lengths must be finite and positive")
+        try:
+            dist = [float(g.get(k, 0.0)) for k in ("k1", "k2", "p1", "p2")]
+            extra = [float(g.get(k, 0.0)) for k in ("k3", "k4")]
+        except (TypeError, ValueError):
+            raise DataError(f"frame {i}: bad distortion coefficients", path=jpath,
+                            fix="k1, k2, p1, p2 must be numbers") from None
+        if any(extra) or g.get("is_fisheye"):
+            raise DataError(f"frame {i}: fisheye or k3/k4 distortion is not supported",
+                            path=jpath, fix="undistort the images first "
+                                            "(e.g. colmap image_undistorter) and drop the keys")
         paths.append(p)
         names.append(p.stem)
+        dists.append(dist)
         Ks.append([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
         c2ws.append(opengl_to_opencv(m))
         sizes.append((w, h))
@@ -130,7 +146,8 @@ def _parse_split(root: Path, split: str) -> dict[str, Any]:
                         f"{sizes[0][0]}x{sizes[0][1]} (mixed image sizes in split {split!r})",
                         path=paths[i], fix="resize all images of a split to one size")
     return {"json": jpath, "paths": paths, "names": names, "K": np.asarray(Ks, np.float64),
-            "c2w": np.asarray(c2ws, np.float64), "width": sizes[0][0], "height": sizes[0][1]}
+            "c2w": np.asarray(c2ws, np.float64), "width": sizes[0][0], "height": sizes[0][1],
+            "dist": np.asarray(dists, np.float64)}
 
 
 def load_blender(root: str | Path, splits=("train",), white_bg: bool = False, radius=None,
@@ -151,7 +168,7 @@ def load_blender(root: str | Path, splits=("train",), white_bg: bool = False, ra
         ref = next(iter(parsed.values()))
     norm, rec = choose_normalisation(ref["c2w"], ref["K"], ref["width"], ref["height"],
                                      bbox=bbox, radius=radius, center=center)
-    out, any_alpha = {}, False
+    out, any_alpha, undistorted = {}, False, False
     for s, p in parsed.items():
         enc = load_image_stack(p["paths"], p["width"], p["height"], s)
         masks = depth = None
@@ -168,11 +185,22 @@ def load_blender(root: str | Path, splits=("train",), white_bg: bool = False, ra
                                     f"{p['width']}x{p['height']}", path=ddir,
                                     fix="depth maps must match the images")
         sp = make_split(s, enc, p["K"], p["c2w"], norm, p["names"], white_bg, masks, depth)
+        if (p["dist"] != 0).any():  # instant-ngp k1, k2, p1, p2: resample like COLMAP's OPENCV
+            from voxnero.data.colmap import undistort_images
+
+            dist = torch.from_numpy(p["dist"].astype(np.float32))
+            K = sp.cameras.K
+            sp.images = undistort_images(sp.images, K, dist)
+            for attr in ("alpha", "masks", "depth"):
+                v = getattr(sp, attr)
+                if v is not None:
+                    setattr(sp, attr, undistort_images(v[..., None], K, dist)[..., 0])
+            undistorted = True
         any_alpha |= sp.alpha is not None
         out[s] = sp
     return Scene(root=root, format="blender", splits=out, norm=norm,
                  up=np.array([0.0, 0.0, 1.0]),
                  background="alpha" if any_alpha else "unknown",
                  meta={"normalisation": rec, "up_method": "Blender convention (+Z)",
-                       "white_bg": bool(white_bg),
+                       "white_bg": bool(white_bg), "undistorted": undistorted,
                        "pose_files": {s: str(p["json"]) for s, p in parsed.items()}})
