@@ -1,9 +1,14 @@
-"""Fixtures of the eval tests: analytic sphere views and the dev scenes' test views."""
+"""Fixtures of the eval tests: analytic sphere views and the dev scenes' test views.
+
+Test modules get the helpers through the session fixture ``geo`` (not ``from conftest import``:
+several test folders have a conftest.py, so the module name ``conftest`` is ambiguous).
+"""
 
 from __future__ import annotations
 
 import functools
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import open3d as o3d
@@ -103,3 +108,11 @@ def dev_scene():
         return _dev_views(name)
 
     return get
+
+
+@pytest.fixture(scope="session")
+def geo():
+    """Helpers: ``look_at_cv``, ``ring_cameras``, ``sphere_views``, ``icosphere``, ``DATA``."""
+    return SimpleNamespace(look_at_cv=look_at_cv, ring_cameras=ring_cameras,
+                           sphere_views=sphere_views, icosphere=icosphere, DATA=DATA)
+

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 import pytest
-from conftest import icosphere, ring_cameras, sphere_views
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -30,16 +29,16 @@ def fibonacci_sphere(n, center, radius):
 
 
 @pytest.fixture(scope="module")
-def views():
-    cams = ring_cameras(8, size=256)
-    depth, normals, masks = sphere_views(cams, C, R)
+def views(geo):
+    cams = geo.ring_cameras(8, size=256)
+    depth, normals, masks = geo.sphere_views(cams, C, R)
     return cams, depth, masks
 
 
 @pytest.fixture(scope="module")
-def small_views():
-    cams = ring_cameras(6, size=128)
-    depth, normals, masks = sphere_views(cams, C, R)
+def small_views(geo):
+    cams = geo.ring_cameras(6, size=128)
+    depth, normals, masks = geo.sphere_views(cams, C, R)
     return cams, depth, masks
 
 
@@ -121,36 +120,36 @@ def self_depth(mesh, cams):
     return depth, np.where(depth > 0, 255, 0).astype(np.uint8)
 
 
-def test_mesh_against_its_own_depth_is_zero(small_views):
+def test_mesh_against_its_own_depth_is_zero(geo, small_views):
     cams = small_views[0]
-    mesh = icosphere(C, R, 5)
+    mesh = geo.icosphere(C, R, 5)
     depth, masks = self_depth(mesh, cams)
     out = chamfer_at_views(mesh, cams, depth, masks)
     # same rays, same hits: the clouds agree to float rounding (measured 2e-18)
     assert out["cd"] <= 1e-12 and out["n_views"] == 6
 
 
-def test_icosphere_against_exact_sphere_depth(views):
+def test_icosphere_against_exact_sphere_depth(geo, views):
     cams, depth, masks = views
-    out = chamfer_at_views(icosphere(C, R, 6), cams, depth, masks)
+    out = chamfer_at_views(geo.icosphere(C, R, 6), cams, depth, masks)
     # facets of a 6x-subdivided icosphere deviate < 4e-5 from the sphere; sampling adds ~1e-4
     assert out["cd"] < 5e-4, out
 
 
 @pytest.mark.parametrize("d", [0.02, 0.05])
-def test_grown_sphere_scores_the_offset(views, d):
+def test_grown_sphere_scores_the_offset(geo, views, d):
     cams, depth, masks = views
-    out = chamfer_at_views(icosphere(C, R + d, 6), cams, depth, masks)
+    out = chamfer_at_views(geo.icosphere(C, R + d, 6), cams, depth, masks)
     # measured 0.02055 and 0.05020 (256² views, 8 cameras): sideways offsets of the ~0.01
     # spaced samples add a few percent at d = 0.02
     assert out["cd"] == pytest.approx(d, rel=0.06), out
     assert out["cd"] >= d * 0.99
 
 
-def test_unit_frame_inputs_scored_in_input_frame(small_views):
+def test_unit_frame_inputs_scored_in_input_frame(geo, small_views):
     cams, depth, masks = small_views
     norm = Normalisation(center=np.array([0.3, -0.7, 1.1]), scale=2.5)
-    pred = icosphere(C, R + 0.02, 6)
+    pred = geo.icosphere(C, R + 0.02, 6)
     ref = chamfer_at_views(pred, cams, depth, masks)
     pred_u = o3d.geometry.TriangleMesh(pred)
     pred_u.vertices = o3d.utility.Vector3dVector(norm.to_unit(np.asarray(pred.vertices)))
@@ -161,10 +160,10 @@ def test_unit_frame_inputs_scored_in_input_frame(small_views):
     assert plain["cd"] < 0.6 * ref["cd"]
 
 
-def test_pred_pixel_rules(small_views):
+def test_pred_pixel_rules(geo, small_views):
     cams, depth, masks = small_views
-    mesh = icosphere(C, R, 6)
-    floater = icosphere(np.array([0.0, 0.0, 1.05]), 0.12, 3)  # above the object, in view
+    mesh = geo.icosphere(C, R, 6)
+    floater = geo.icosphere(np.array([0.0, 0.0, 1.05]), 0.12, 3)  # above the object, in view
     both = mesh + floater
     base = chamfer_at_views(mesh, cams, depth, masks)["cd"]
     assert chamfer_at_views(both, cams, depth, masks)["cd"] > base + 0.005
@@ -182,10 +181,10 @@ def test_pred_pixel_rules(small_views):
         chamfer_at_views(mesh, cams, depth, masks, pred_pixels="most")
 
 
-def test_shape_mismatch_rejected(small_views):
+def test_shape_mismatch_rejected(geo, small_views):
     cams, depth, masks = small_views
     with pytest.raises(ValueError, match=r"\(V, H, W\)"):
-        chamfer_at_views(icosphere(C, R, 2), cams, depth[:3], masks[:3])
+        chamfer_at_views(geo.icosphere(C, R, 2), cams, depth[:3], masks[:3])
 
 
 @pytest.mark.parametrize("name", ["sphere_gold", "torus_ceramic"])

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 import pytest
-from conftest import icosphere, ring_cameras, sphere_views
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -15,9 +14,9 @@ C, R = np.array([0.05, -0.1, 0.08]), 0.5
 
 
 @pytest.fixture(scope="module")
-def views():
-    cams = ring_cameras(6, size=128)
-    depth, normals, masks = sphere_views(cams, C, R)
+def views(geo):
+    cams = geo.ring_cameras(6, size=128)
+    depth, normals, masks = geo.sphere_views(cams, C, R)
     return cams, normals, masks
 
 
@@ -29,9 +28,9 @@ def test_angle_deg_closed_form(theta, scale):
     assert angle_deg(a, b) == pytest.approx(np.degrees(theta), rel=1e-9, abs=1e-9)
 
 
-def test_sphere_normals_small_flipped_large(views):
+def test_sphere_normals_small_flipped_large(geo, views):
     cams, normals, masks = views
-    mesh = icosphere(C, R, 5)
+    mesh = geo.icosphere(C, R, 5)
     vert = normal_error_at_views(mesh, cams, normals, masks)
     face = normal_error_at_views(mesh, cams, normals, masks, source="face")
     # interpolated vertex normals of a 5x-subdivided icosphere (facet angle ~1.1°) are within
@@ -45,9 +44,9 @@ def test_sphere_normals_small_flipped_large(views):
     assert normal_error_at_views(flipped, cams, normals, masks)["mean_deg"] > 179.0
 
 
-def test_misses_are_reported_not_scored(views):
+def test_misses_are_reported_not_scored(geo, views):
     cams, normals, masks = views
-    small = icosphere(C, 0.3, 4)  # covers only the centre of the GT silhouette
+    small = geo.icosphere(C, 0.3, 4)  # covers only the centre of the GT silhouette
     out = normal_error_at_views(small, cams, normals, masks)
     # area ratio of the silhouettes at distance 4 is about (0.3 / 0.5)² = 0.36
     assert 0.25 < out["hit_fraction"] < 0.45
@@ -81,7 +80,7 @@ def test_dev_torus_rotated_is_large(dev_scene):
     assert bad["mean_deg"] > 10 * good["mean_deg"] and bad["mean_deg"] > 10.0
 
 
-def test_shape_mismatch_rejected(views):
+def test_shape_mismatch_rejected(geo, views):
     cams, normals, masks = views
     with pytest.raises(ValueError, match=r"\(V, H, W, 3\)"):
-        normal_error_at_views(icosphere(C, R, 2), cams, normals[:, ..., :2], masks)
+        normal_error_at_views(geo.icosphere(C, R, 2), cams, normals[:, ..., :2], masks)

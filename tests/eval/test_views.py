@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from conftest import icosphere, ring_cameras
 
 from voxnero.cameras.rays import image_rays
 from voxnero.eval.views import MeshCaster, full_coverage, iter_view_rays, partial_coverage
@@ -20,8 +19,8 @@ def test_coverage_from_8bit_and_fraction_masks():
     assert (partial_coverage(frac) == partial_coverage(m8)).all()
 
 
-def test_batched_rays_equal_per_view_rays():
-    cams = ring_cameras(5, size=24)
+def test_batched_rays_equal_per_view_rays(geo):
+    cams = geo.ring_cameras(5, size=24)
     seen = []
     for v, o, d, fwd in iter_view_rays(cams, max_rays=2 * 24 * 24):  # batches of 2 views
         o_ref, d_ref = image_rays(cams, v)
@@ -33,9 +32,9 @@ def test_batched_rays_equal_per_view_rays():
     assert seen == [0, 1, 2, 3, 4]
 
 
-def test_barycentric_convention_reproduces_hit_points():
-    cams = ring_cameras(1, size=64)
-    mesh = icosphere(np.array([0.05, -0.1, 0.08]), 0.5, 3)
+def test_barycentric_convention_reproduces_hit_points(geo):
+    cams = geo.ring_cameras(1, size=64)
+    mesh = geo.icosphere(np.array([0.05, -0.1, 0.08]), 0.5, 3)
     caster = MeshCaster(mesh)
     _, o, d, _ = next(iter_view_rays(cams))
     res = caster.cast(o, d)

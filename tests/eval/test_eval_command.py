@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import pytest
 import yaml
-from conftest import DATA
 from PIL import Image
 
 from voxnero.cli import main
 
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 SG = DATA / "sphere_gold"
 needs_data = pytest.mark.skipif(not (SG / "gt" / "mesh.ply").is_file(),
                                 reason=f"dev scene sphere_gold not found under {DATA}")
