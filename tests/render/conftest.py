@@ -16,8 +16,3 @@ def _one_torch_thread():
     yield
     torch.set_num_threads(before)
 
-
-@pytest.fixture(autouse=True, scope="session")
-def _private_cache(tmp_path_factory):
-    """Keep the split-sum table cache of the default location unless VOXNERO_CACHE is set."""
-    yield
