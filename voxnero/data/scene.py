@@ -342,7 +342,8 @@ def load_image_stack(paths: list[Path], width: int, height: int, split: str,
     for i, (p, im) in enumerate(zip(paths, imgs, strict=True)):
         if im.shape[:2] != (height, width):
             raise DataError(f"image is {im.shape[1]}x{im.shape[0]} but split {split!r} expects "
-                            f"{width}x{height} (mixed image sizes)", path=p,
+                            f"{width}x{height} (mixed image sizes, or w/h in the pose file do "
+                            "not match the images)", path=p,
                             fix="resize all images of a split to one size, or fix w/h in the "
                                 "pose file")
         if im.shape[2] == 1:
