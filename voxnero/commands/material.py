@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
     mesh = load_mesh(mesh_path, scene.norm)
     geom = Geometry.from_legacy(mesh)
     gen = torch.Generator().manual_seed(cfg.seed)
-    cache = build_cache(geom, train.images, train.cameras, cfg.max_pixels, gen)
+    cache = build_cache(geom, train.images, train.cameras, cfg.max_pixels, gen,
+                        cfg.max_bg_pixels)
     times["load_and_cast_s"] = time.perf_counter() - t0
     print(f"[material] {scene_path}: {train.n} views; mesh {mesh_path} "
           f"({len(mesh.vertices)} vertices); object pixels {cache.n_object_total} "

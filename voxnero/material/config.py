@@ -35,7 +35,7 @@ class FieldConfig:
 class LightConfig:
     """Direct light (explicit lat-long HDR map) and indirect light."""
 
-    env_height: list[int] = _field(default_factory=lambda: [64, 128])
+    env_height: list[int] = _field(default_factory=lambda: [64, 256])
     """Env-map heights coarse to fine (width = 2 × height); upsampled at ``upsample_at``."""
     upsample_at: float = 0.3
     """Fraction of ``iters`` at which the env map moves to the next resolution."""
@@ -73,7 +73,7 @@ class MaterialConfig:
     iters: int = 1500
     batch: int = 2048
     """Object pixels per step."""
-    bg_batch: int = 4096
+    bg_batch: int = 16384
     """Background pixels per step (they train the env map directly)."""
     lr_material: float = 0.03
     lr_env: float = 0.03
@@ -81,6 +81,8 @@ class MaterialConfig:
     """Final learning rate as a fraction of the initial one (exponential decay)."""
     max_pixels: int = 400000
     """At most this many object pixels are cached (a random subset of all training pixels)."""
+    max_bg_pixels: int = -1
+    """At most this many background pixels are cached (-1 = all)."""
     seed: int = 0
     threads: int = 0
     """torch CPU threads (0 = torch's default); 1 is fastest on a busy shared CPU."""

@@ -83,15 +83,10 @@ class EnvLight(nn.Module):
         return envmap_lookup(self.image(), d)
 
     def upsampled(self, height: int) -> EnvLight:
-        """A new EnvLight at ``height`` (bilinear in log radiance, periodic in u)."""
-        lr = self.log_rad.detach().permute(2, 0, 1)[None]
-        lr = torch.cat([lr[..., -1:], lr, lr[..., :1]], -1)  # wrap columns
-        W0 = self.log_rad.shape[1]
-        up = F.interpolate(lr, size=(height, 2 * height * (W0 + 2) // W0), mode="bilinear",
-                           align_corners=True)
-        pad = (up.shape[-1] - 2 * height) // 2
-        up = up[..., pad:pad + 2 * height]
-        return EnvLight(torch.exp(up[0].permute(1, 2, 0)))
+        """A new EnvLight at ``height``: the log map looked up (bilinear, same convention) at the
+        new pixel-centre directions."""
+        d = pixel_dirs(height, 2 * height)
+        return EnvLight(torch.exp(envmap_lookup(self.log_rad.detach(), d)))
 
     def smoothness(self) -> Tensor:
         """Mean squared difference of neighbouring log-radiance pixels (periodic in u)."""

@@ -177,16 +177,18 @@ def _interior(hit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def build_cache(geom: Geometry, images: Tensor, cameras, max_pixels: int = 400000,
-                generator: torch.Generator | None = None) -> SurfaceCache:
+                generator: torch.Generator | None = None, max_bg_pixels: int | None = None
+                ) -> SurfaceCache:
     """Cast every training pixel's centre ray once and keep what stage 2 trains on.
 
     Args:
         geom: the mesh (unit frame).
         images: (K, H, W, 3) LINEAR training images.
         cameras: :class:`voxnero.cameras.cameras.Cameras` of the K views (unit frame).
-        max_pixels: keep at most this many object pixels and as many background pixels
-            (uniform random subsets); <= 0 keeps all.
+        max_pixels: keep at most this many object pixels (uniform random subset); <= 0 keeps
+            all.
         generator: torch generator of the subsets.
+        max_bg_pixels: the same for background pixels (None: same as ``max_pixels``).
 
     Returns:
         The :class:`SurfaceCache`.
@@ -217,8 +219,9 @@ def build_cache(geom: Geometry, images: Tensor, cameras, max_pixels: int = 40000
     if max_pixels > 0 and n_obj > max_pixels:
         sel = torch.randperm(n_obj, generator=generator)[:max_pixels]
         cat = {k: v[sel] for k, v in cat.items()}
-    if max_pixels > 0 and n_bg > max_pixels:
-        sel = torch.randperm(n_bg, generator=generator)[:max_pixels]
+    max_bg = max_pixels if max_bg_pixels is None else max_bg_pixels
+    if max_bg > 0 and n_bg > max_bg:
+        sel = torch.randperm(n_bg, generator=generator)[:max_bg]
         bg_d, bg_rgb = bg_d[sel], bg_rgb[sel]
     x = geom.points_at(cat["tri"], cat["bary"])
     n = geom.normals_at(cat["tri"], cat["bary"])
