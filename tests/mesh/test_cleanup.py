@@ -6,7 +6,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from voxnero.mesh.cleanup import clean_mesh
+from voxnero.mesh.cleanup import clean_mesh, max_triangles_per_edge, triangle_components
 from voxnero.mesh.extract import extract_mesh
 
 BIG_C, BIG_R = np.array([0.0, 0.1, -0.1]), 0.5
@@ -70,6 +70,34 @@ def test_taubin_smooths_without_shrinking():
     r_smooth = np.linalg.norm(np.asarray(clean_mesh(noisy, taubin_iters=10).vertices), axis=1)
     assert r_smooth.std() < 0.5 * r_noisy.std()
     assert abs(r_smooth.mean() - 0.5) < 0.01  # Taubin's λ/μ pair barely shrinks
+
+
+def test_components_agree_with_open3d():
+    m = two_blobs(40)
+    labels, areas = triangle_components(np.asarray(m.vertices), np.asarray(m.triangles))
+    ref_labels, _, ref_areas = m.cluster_connected_triangles()  # Open3D: edge-connected
+    ref_labels, ref_areas = np.asarray(ref_labels), np.asarray(ref_areas)
+    assert len(areas) == len(ref_areas) == 2
+    # same partition (labels may be numbered differently) and the same areas
+    pairs = set(zip(labels.tolist(), ref_labels.tolist(), strict=True))
+    assert len(pairs) == 2
+    for a, b in pairs:
+        assert areas[a] == pytest.approx(ref_areas[b], rel=1e-9)
+    assert areas.sum() == pytest.approx(m.get_surface_area(), rel=1e-9)
+
+
+def test_non_manifold_edge_is_repaired():
+    # three triangles on the edge (0, 1): a fan that no surface can have
+    v = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0], [0.5, 0, 1.0]], dtype=float)
+    t = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])
+    assert max_triangles_per_edge(t, len(v)) == 3
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(t))
+    m = clean_mesh(mesh, keep="all")
+    assert max_triangles_per_edge(np.asarray(m.triangles), len(m.vertices)) <= 2
+    assert len(m.triangles) == 2
+    # a closed marching-cubes surface is manifold: every edge has exactly two triangles
+    closed = two_blobs(24)
+    assert max_triangles_per_edge(np.asarray(closed.triangles), len(closed.vertices)) == 2
 
 
 def test_empty_mesh_rejected():
