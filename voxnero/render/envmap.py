@@ -432,6 +432,13 @@ class EnvMap:
         H, W = self.img.shape[:2]
         om = pixel_solid_angles(H, W, device=self.device, dtype=torch.float64)
         lum = luminance(self.img.double()).clamp_min(0.0)
+        # energy of the *bilinear* interpolant over each cell: separable [1, 6, 1] / 8 filter
+        # (a hot pixel spreads into its neighbours' cells; uniform-in-cell sampling of the
+        # plain pixel values would leave 44 % of its energy to the other strategies)
+        lum = (lum.roll(1, 1) + 6.0 * lum + lum.roll(-1, 1)) / 8.0
+        up = torch.cat([lum[:1], lum[:-1]], 0)
+        down = torch.cat([lum[1:], lum[-1:]], 0)
+        lum = (up + 6.0 * lum + down) / 8.0
         w = om * (lum + 1e-2 * (lum * om).sum() / (4.0 * math.pi) + 1e-12)
         p = w / w.sum()
         row = p.sum(1)

@@ -150,7 +150,8 @@ def shade_mc(
                 elif occl.numel() > 0:
                     li = li.index_put((occl,), torch.zeros(occl.numel(), 3, dtype=li.dtype,
                                                            device=li.device))
-        f = brdf_eval(n.repeat_interleave(c, 0), vv, l, albedo.repeat_interleave(c, 0),
+        f = brdf_eval(n.repeat_interleave(c, 0), v.repeat_interleave(c, 0), l,
+                      albedo.repeat_interleave(c, 0),
                       metallic.repeat_interleave(c, 0), roughness.repeat_interleave(c, 0))
         contrib = f * li * scale[:, None]
         total = total + contrib.reshape(N, c, 3).sum(1)
