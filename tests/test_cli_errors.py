@@ -167,8 +167,6 @@ def test_info_on_a_good_scene_and_info_json(tmp_path, capsys):
     assert info["normalisation"]["method"].startswith("cameras")
 
 
-@pytest.mark.xfail(reason="voxnero/cli.py uses parse_args: key=value after --out DIR (the "
-                   "documented order) is rejected; needs parse_intermixed_args", strict=False)
 def test_overrides_after_out_documented_order(tmp_path, capsys):
     make_blender(tmp_path / "s", n={"train": 2})
     assert cli.main(["info", str(tmp_path / "s"), "--out", str(tmp_path / "o"),

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 
 from voxnero.errors import VoxneroError
@@ -61,10 +62,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+_OVERRIDE = re.compile(r"^[A-Za-z_][\w.]*=")
+
+
+def parse_command_line(parser: argparse.ArgumentParser,
+                       argv: list[str] | None) -> argparse.Namespace:
+    """Parse ``argv``, accepting ``key=value`` overrides anywhere after the command.
+
+    argparse alone stops filling the ``overrides`` positional once an option such as ``--out DIR``
+    follows it, so the documented order ``SCENE --out DIR key=value`` would be refused; tokens left
+    over that look like ``key=value`` are appended to ``args.overrides`` instead.
+    """
+    args, extras = parser.parse_known_args(argv)
+    rest = [t for t in extras if not _OVERRIDE.match(t)]
+    if rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    overrides = [t for t in extras if _OVERRIDE.match(t)]
+    if overrides:
+        if not hasattr(args, "overrides"):
+            parser.error(f"'{args.command}' takes no key=value overrides: {' '.join(overrides)}")
+        args.overrides = list(args.overrides or []) + overrides
+    return args
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``voxnero`` console script; returns the exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parse_command_line(parser, argv)
     if not getattr(args, "command", None):
         parser.print_help()
         return 2

@@ -28,9 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _stage(argv: list[str]) -> None:
-    from voxnero.cli import build_parser
+    from voxnero.cli import build_parser, parse_command_line
 
-    args = build_parser().parse_args(argv)
+    args = parse_command_line(build_parser(), argv)
     rc = args._run(args)
     if rc:
         raise SystemExit(rc)
