@@ -441,12 +441,9 @@ class EnvMap:
         lum = (up + 6.0 * lum + down) / 8.0
         w = om * (lum + 1e-2 * (lum * om).sum() / (4.0 * math.pi) + 1e-12)
         p = w / w.sum()
-        row = p.sum(1)
-        cond = p / row[:, None]
         self._sampler = {
-            "p": p, "om": om,
-            "row_cdf": torch.cumsum(row, 0), "row": row,
-            "cond_cdf": torch.cumsum(cond, 1), "cond": cond,
+            "p": p, "om": om, "flat": p.reshape(-1),
+            "cdf": torch.cumsum(p.reshape(-1), 0),
             "cos_edges": torch.cos(_row_edges(H, device=self.device)),
         }
 
@@ -464,13 +461,13 @@ class EnvMap:
         s = self._sampler
         H, W = self.img.shape[:2]
         u = u.to(torch.float64).clamp(0.0, 1.0 - 1e-12)
-        j = torch.searchsorted(s["row_cdf"], u[:, 0].contiguous(), right=True).clamp(max=H - 1)
-        lo = s["row_cdf"][j] - s["row"][j]
-        u0 = ((u[:, 0] - lo) / s["row"][j]).clamp(0.0, 1.0)
-        cdf = s["cond_cdf"][j]
-        i = torch.searchsorted(cdf, u[:, 1:2].contiguous(), right=True)[:, 0].clamp(max=W - 1)
-        pc = s["cond"][j, i]
-        u1 = ((u[:, 1] - (cdf.gather(1, i[:, None])[:, 0] - pc)) / pc).clamp(0.0, 1.0)
+        # one binary search over the flattened cell CDF; the remainder of u0 within the chosen
+        # cell is reused for the position in theta, u1 for the position in phi
+        k = torch.searchsorted(s["cdf"], u[:, 0].contiguous(), right=True).clamp(max=H * W - 1)
+        pk = s["flat"][k]
+        u0 = ((u[:, 0] - (s["cdf"][k] - pk)) / pk.clamp_min(1e-300)).clamp(0.0, 1.0)
+        u1 = u[:, 1]
+        j, i = k // W, k % W
         c_lo, c_hi = s["cos_edges"][j], s["cos_edges"][j + 1]
         cos_t = (c_lo - u0 * (c_lo - c_hi)).clamp(-1.0, 1.0)
         sin_t = torch.sqrt((1.0 - cos_t * cos_t).clamp_min(0.0))
