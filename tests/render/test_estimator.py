@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -75,24 +76,33 @@ def _quadrature(env_img, n, v, albedo, m, r, nz=384, nphi=768):
     return (f * L * cos).sum(0) * (2 / nz) * (2 * math.pi / nphi)
 
 
+CASES = [  # (normal, view angle from n, roughness, metallic)
+    ((0.0, 0.0, 1.0), 0.3, 0.5, 0.0),
+    ((0.3, 0.1, 0.9), 0.9, 0.45, 1.0),
+    ((-0.5, 0.2, 0.6), 1.2, 0.8, 0.5),
+]
+ALBEDO = (0.8, 0.6, 0.3)
+
+
+@functools.cache
+def _case(k: int):
+    from voxnero.render.sampling import frame_from_normal
+
+    nt, tv, r, m = CASES[k]
+    n = torch.nn.functional.normalize(torch.tensor(nt), dim=0)
+    t, _ = frame_from_normal(n[None])
+    v = math.sin(tv) * t[0] + math.cos(tv) * n
+    return n, v, r, m, _quadrature(_smooth_env(), n, v, torch.tensor(ALBEDO), m, r)
+
+
 @pytest.mark.parametrize("strategy", ["mis", "balance", "cosine", "ggx", "env"])
 def test_estimator_matches_brute_force_quadrature(strategy):
-    img = _smooth_env()
-    env = EnvMap(img)
+    env = EnvMap(_smooth_env())
     g = torch.Generator().manual_seed(1)
-    cases = [  # (normal, view angle from n, roughness, metallic)
-        (torch.tensor([0.0, 0.0, 1.0]), 0.3, 0.5, 0.0),
-        (torch.nn.functional.normalize(torch.tensor([0.3, 0.1, 0.9]), dim=0), 0.9, 0.45, 1.0),
-        (torch.nn.functional.normalize(torch.tensor([-0.5, 0.2, 0.6]), dim=0), 1.2, 0.8, 0.5),
-    ]
-    albedo = torch.tensor([0.8, 0.6, 0.3])
+    albedo = torch.tensor(ALBEDO)
     reps = 32
-    for n, tv, r, m in cases:
-        from voxnero.render.sampling import frame_from_normal
-
-        t, _ = frame_from_normal(n[None])
-        v = math.sin(tv) * t[0] + math.cos(tv) * n
-        ref = _quadrature(img, n, v, albedo, m, r)
+    for k in range(len(CASES)):
+        n, v, r, m, ref = _case(k)
         N = reps
         out = shade_mc(torch.zeros(N, 3), n.expand(N, 3), v.expand(N, 3), albedo.expand(N, 3),
                        torch.full((N, 1), m), torch.full((N, 1), r), env, 384,

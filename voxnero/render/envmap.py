@@ -296,7 +296,8 @@ def lookup_rough(chain: list[Tensor], d: Tensor, roughness: Tensor) -> Tensor:
         roughness: (..., 1) perceptual roughness.
 
     Returns:
-        (..., C) filtered radiance (level 0 exactly at roughness <= 1 / sqrt(...)).
+        (..., C) filtered radiance (level 0 exactly while 2 alpha <= dtheta_0, i.e.
+        r <= sqrt(dtheta_0 / 2) = 0.078 for H = 256).
     """
     L = len(chain)
     lev = roughness_to_level(roughness, chain[0].shape[0], L)  # (..., 1)
