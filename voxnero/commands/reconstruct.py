@@ -1,21 +1,77 @@
-"""``voxnero reconstruct``: stage 1 then stage 2 with one preset.
+"""``voxnero reconstruct``: stage 1 (``voxnero shape``) then stage 2 (``voxnero material``) with
+one preset.
 
-Not built yet (issues #7 and #4)."""
+``voxnero reconstruct SCENE --preset NAME --out DIR [shape.key=value material.key=value ...]``
+
+Writes ``DIR/shape/`` (mesh.ply, stage-1 run files) and ``DIR/material/`` (model.glb,
+model.obj, envmap.exr, materials.json ...). Overrides must name their stage (``shape.iters=3000``,
+``material.iters=800``). Re-running resumes each stage from its checkpoint.
+"""
 
 from __future__ import annotations
 
 import argparse
-
-from voxnero.cli import add_common
-from voxnero.commands._notbuilt import not_built
+import time
+from pathlib import Path
 
 NAME = "reconstruct"
-HELP = "stage 1 then stage 2 with one preset [not built yet]"
+HELP = "stage 1 then stage 2 with one preset: photos -> mesh, materials, env light"
+DESCRIPTION = __doc__.split("\n\n", 1)[1]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_common(parser, "scene folder or run folder", out_required=False)
+    from voxnero.cli import add_common
+
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    add_common(parser, "scene folder (NeRF-synthetic/Blender, NeRO or COLMAP)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def _stage(argv: list[str]) -> None:
+    from voxnero.cli import build_parser
+
+    args = build_parser().parse_args(argv)
+    rc = args._run(args)
+    if rc:
+        raise SystemExit(rc)
+
+
+def split_overrides(items: list[str]) -> tuple[list[str], list[str]]:
+    """Overrides for stage 1 and stage 2 (``shape.`` / ``material.`` prefixes kept).
+
+    Raises:
+        ConfigError: an override names no stage.
+    """
+    from voxnero.errors import ConfigError
+
+    shape, material = [], []
+    for item in items:
+        key = item.split("=", 1)[0].strip()
+        if key.startswith("shape."):
+            shape.append(item)
+        elif key.startswith("material."):
+            material.append(item)
+        else:
+            raise ConfigError(f"override {item!r} does not name its stage",
+                              fix=f"write shape.{item} or material.{item}")
+    return shape, material
 
 
 def run(args: argparse.Namespace) -> int:
-    return not_built(NAME, "issues #7 and #4")
+    out = Path(args.out)
+    ov_shape, ov_material = split_overrides(list(args.overrides))
+    extra = ["--no-progress"] if args.no_progress else []
+    steps = [
+        ("shape", ["shape", *extra, "--preset", args.preset, "--out", str(out / "shape"),
+                   "--device", args.device, str(args.target), *ov_shape]),
+        ("material", ["material", *extra, "--scene", str(args.target), "--preset", args.preset,
+                      "--out", str(out / "material"), "--device", args.device,
+                      str(out / "shape"), *ov_material]),
+    ]
+    for name, argv in steps:
+        t0 = time.perf_counter()
+        print(f"[reconstruct] {name}: voxnero {' '.join(argv)}", flush=True)
+        _stage(argv)
+        print(f"[reconstruct] {name} done in {time.perf_counter() - t0:.1f} s", flush=True)
+    print(f"[reconstruct] outputs in {out}/shape and {out}/material")
+    return 0
