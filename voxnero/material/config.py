@@ -51,13 +51,13 @@ class LightConfig:
 class RenderConfig:
     """Monte Carlo rendering equation on the surface."""
 
-    spp_cos: int = 8
-    """Cosine-weighted samples per pixel (training)."""
-    spp_ggx: int = 8
-    """GGX visible-normal samples per pixel (training)."""
-    spp_env: int = 8
-    """Env-map importance samples per pixel (training)."""
-    eval_scale: int = 8
+    spp_cos: int = 4
+    """Cosine-weighted samples per pixel and estimate (training)."""
+    spp_ggx: int = 4
+    """GGX visible-normal samples per pixel and estimate (training)."""
+    spp_env: int = 4
+    """Env-map importance samples per pixel and estimate (training)."""
+    eval_scale: int = 6
     """Evaluation renders use ``eval_scale`` times the training samples."""
     decorrelate: bool = True
     """Loss on two independent estimates per pixel, (p1 − t)(p2 − t), instead of (p − t)²:
@@ -70,12 +70,12 @@ class RenderConfig:
 class MaterialConfig:
     """Stage 2: materials and lights on a fixed mesh."""
 
-    iters: int = 1500
-    batch: int = 2048
+    iters: int = 1000
+    batch: int = 1024
     """Object pixels per step."""
     bg_batch: int = 16384
     """Background pixels per step (they train the env map directly)."""
-    lr_material: float = 0.03
+    lr_material: float = 0.05
     lr_env: float = 0.03
     lr_decay: float = 0.1
     """Final learning rate as a fraction of the initial one (exponential decay)."""
