@@ -135,9 +135,13 @@ def envmap_lookup(img: Tensor, d: Tensor) -> Tensor:
         (exactly, up to float64 rounding, except on the pole rows where all columns
         share one direction).
     """
-    H, W = img.shape[0], img.shape[1]
     # pixel coordinates in float64: float32 atan2 would blend ~1e-5 of the neighbour pixel
-    uv = dir_to_uv(d.to(torch.float64))
+    return _bilinear(img, dir_to_uv(d.to(torch.float64)))
+
+
+def _bilinear(img: Tensor, uv: Tensor) -> Tensor:
+    """Bilinear sample of (H, W, C) at (..., 2) uv (x periodic, y clamped) -> (..., C)."""
+    H, W = img.shape[0], img.shape[1]
     x = uv[..., 0] * W - 0.5
     y = (uv[..., 1] * (H - 1)).clamp(0.0, H - 1)
     x0f = torch.floor(x)
@@ -301,13 +305,19 @@ def lookup_rough(chain: list[Tensor], d: Tensor, roughness: Tensor) -> Tensor:
     """
     L = len(chain)
     lev = roughness_to_level(roughness, chain[0].shape[0], L)  # (..., 1)
-    out = 0.0
+    lead = d.shape[:-1]
+    uv = dir_to_uv(d.reshape(-1, 3).to(torch.float64))
+    if lev.dim() == len(lead):
+        lev = lev.unsqueeze(-1)
+    lev = lev.expand(*lead, 1).reshape(-1)
+    out = torch.zeros(uv.shape[0], chain[0].shape[-1], dtype=chain[0].dtype, device=d.device)
     for k, img in enumerate(chain):
-        w = (1.0 - (lev - k).abs()).clamp_min(0.0)
-        if L == 1:
-            w = torch.ones_like(lev)
-        out = out + w * envmap_lookup(img, d)
-    return out
+        w = (1.0 - (lev - k).abs()).clamp_min(0.0) if L > 1 else torch.ones_like(lev)
+        sel = torch.nonzero(w > 0)[:, 0]  # each point touches at most two levels
+        if sel.numel() == 0:
+            continue
+        out = out.index_add(0, sel, w[sel, None].to(out.dtype) * _bilinear(img, uv[sel]))
+    return out.reshape(*lead, -1)
 
 
 _SH_BAND_GAIN = (math.pi, 2.0 * math.pi / 3.0, math.pi / 4.0)
@@ -415,6 +425,10 @@ class EnvMap:
     @property
     def device(self) -> torch.device:
         return self.img.device
+
+    def to(self, device) -> EnvMap:
+        """A copy on ``device`` (precomputed tables are rebuilt lazily there)."""
+        return EnvMap(self.img, up=self.up, yaw_deg=self.yaw_deg, device=device)
 
     def _to_map(self, d: Tensor) -> Tensor:
         return d if self._identity else d @ self._M.to(d.dtype).T
