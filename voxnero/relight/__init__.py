@@ -1,0 +1,1 @@
+"""Relighting: load an exported asset, choose cameras, path-trace it under an HDR env map."""

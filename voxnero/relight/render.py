@@ -1,0 +1,344 @@
+"""Relight driver: path-trace an :class:`~voxnero.relight.asset.Asset` under an HDR env map.
+
+Per pixel, ``spp`` primary rays through stratified jittered positions in the pixel footprint
+(the box filter of the dev data) are cast against the mesh with Open3D
+(:class:`voxnero.material.surface.Geometry`, the stage-2 ray caster). A ray that misses shows
+the env map along it (the environment is at infinity). A hit is shaded with the shading core's
+MIS estimator :func:`voxnero.render.estimator.shade_mc` (cosine + GGX-VNDF + env-map samples,
+power heuristic) with Open3D visibility; light arriving along an occluded direction is the
+radiance of the surface it hits, shaded the same way (recursively, up to ``bounces`` surface
+interactions); after the last bounce it is the stage-2 split-sum estimate
+(:class:`voxnero.material.lights.IndirectLight`, ``tail="splitsum"``) or 0 (``tail="none"``).
+
+Why not ``voxnero.material.render.shade``: its indirect hook receives no hit position, so it
+cannot continue a path; this thin driver calls the shading core directly and shares the
+ray caster, the indirect-light tail and the BRDF with stage 2.
+
+Frames: the asset lives in the scene's input frame; rendering happens in the asset's own unit
+frame (``Normalisation(centre of the bounding box, bounding radius)``, so ray offsets are
+scale-free); cameras given in the input frame are mapped with the same similarity. The env map
+is +Z up in its own frame; ``up`` names the world axis that is up for the map and ``yaw_deg``
+turns it about that axis (``voxnero.render.envmap.rotate_dirs``).
+
+Outputs are LINEAR radiance times ``2**exposure``; PNGs are ``round(255 · sRGB(clip(L)))``
+like the dev data.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from voxnero.errors import ConfigError
+
+
+@dataclass
+class OrbitConfig:
+    """Turntable cameras (``voxnero relight --orbit``)."""
+
+    frames: int = 36
+    elevation_deg: float = 20.0
+    distance: float = 0.0
+    """Camera distance in input-frame units; 0 = the bounding sphere fills 80 % of the view."""
+    fov_deg: float = 40.0
+    size: int = 256
+    """Image width = height in pixels."""
+
+
+@dataclass
+class RelightConfig:
+    """Monte Carlo settings and outputs of ``voxnero relight`` (section ``relight:``)."""
+
+    spp: int = 16
+    """Primary rays per pixel (stratified in the pixel footprint: box filter, antialiasing)."""
+    dirs: int = 3
+    """Shading directions per primary hit, split over the cosine / GGX / env strategies."""
+    bounce_dirs: int = 3
+    """Shading directions per secondary hit (each path branches into this many)."""
+    bounces: int = 2
+    """Surface interactions traced by Monte Carlo (1 = direct light with shadows)."""
+    tail: str = "splitsum"
+    """Light along occluded directions after the last bounce: 'splitsum' (stage-2
+    IndirectLight estimate of the hit's radiance) or 'none' (0)."""
+    strategy: str = "mis"
+    """shade_mc strategy: mis, balance, cosine, ggx, env."""
+    scale: float = 1.0
+    """Resolution scale of the cameras (0.5 = half width and height)."""
+    exposure: float = 0.0
+    """Exposure in stops: every output radiance is multiplied by 2**exposure."""
+    yaw_deg: float = 0.0
+    """Rotation of the env map about the up axis (degrees)."""
+    env_scale: float = 1.0
+    """Multiplier of the env map's radiance as read."""
+    split: str = "test"
+    """Split of --scene whose cameras are used."""
+    views: int = -1
+    """How many of the cameras to render (evenly spread); -1 = all."""
+    chunk: int = 65536
+    """Primary rays cast and shaded at once."""
+    seed: int = 0
+    threads: int = 0
+    """torch CPU threads (0 = torch's default)."""
+    png: bool = True
+    exr: bool = True
+    orbit: OrbitConfig = field(default_factory=OrbitConfig)
+
+    def validate(self) -> None:
+        """Raise ConfigError on impossible values."""
+        from voxnero.render.estimator import STRATEGIES
+
+        if self.spp < 1 or self.dirs < 1 or self.bounce_dirs < 1 or self.bounces < 1:
+            raise ConfigError("relight.spp, dirs, bounce_dirs and bounces must be >= 1",
+                              fix="e.g. spp=16 dirs=3 bounces=2")
+        if self.tail not in ("splitsum", "none"):
+            raise ConfigError(f"relight.tail={self.tail!r}", fix="use splitsum or none")
+        if self.strategy not in STRATEGIES:
+            raise ConfigError(f"relight.strategy={self.strategy!r}",
+                              fix=f"use one of {STRATEGIES}")
+        if not self.scale > 0:
+            raise ConfigError("relight.scale must be > 0", fix="e.g. scale=0.5")
+
+
+_UP_NAMES = {(0, 0, 1): "z", (0, 1, 0): "y", (0, -1, 0): "-y", (1, 0, 0): "x", (0, 0, -1): "-z"}
+
+
+def up_axis_name(up: np.ndarray) -> str:
+    """Name of an axis-aligned up vector for ``voxnero.render.envmap.rotate_dirs``.
+
+    Args:
+        up: (3,) unit vector, one of ±Z, ±Y, +X.
+
+    Raises:
+        ConfigError: another direction (not supported by the env-map rotations).
+    """
+    key = tuple(int(round(float(c))) for c in np.asarray(up, dtype=np.float64))
+    if key not in _UP_NAMES or abs(np.linalg.norm(up) - 1) > 1e-3 or \
+            np.abs(np.asarray(up) - np.asarray(key)).max() > 1e-3:
+        raise ConfigError(f"up axis {np.asarray(up).tolist()} is not axis-aligned",
+                          fix="relighting supports scenes whose up axis is ±Z, ±Y or +X")
+    return _UP_NAMES[key]
+
+
+def pixel_samples(height: int, width: int, spp: int, generator: torch.Generator | None = None,
+                  window: tuple[int, int, int, int] | None = None) -> Tensor:
+    """Stratified jittered sample positions in every pixel.
+
+    With ``spp = k²`` each pixel is split into a k × k grid with one uniform point per cell;
+    otherwise ``spp`` independent uniform points.
+
+    Args:
+        height, width: image size.
+        spp: samples per pixel.
+        generator: random stream.
+        window: (row0, col0, rows, cols) sub-image to sample (default the whole image).
+
+    Returns:
+        (rows, cols, spp, 2) continuous pixel coordinates (x = column, y = row); pixel (i, j)
+        covers [i, i+1] × [j, j+1].
+    """
+    r0, c0, h, w = window if window is not None else (0, 0, height, width)
+    k = int(round(math.sqrt(spp)))
+    u = torch.rand(h, w, spp, 2, generator=generator)
+    if k * k == spp:
+        g = torch.arange(k, dtype=torch.float32)
+        gy, gx = torch.meshgrid(g, g, indexing="ij")
+        cell = torch.stack([gx.reshape(-1), gy.reshape(-1)], -1)  # (spp, 2)
+        u = (cell + u) / k
+    jj = torch.arange(r0, r0 + h, dtype=torch.float32)[:, None, None]
+    ii = torch.arange(c0, c0 + w, dtype=torch.float32)[None, :, None]
+    return torch.stack([ii + u[..., 0], jj + u[..., 1]], -1)
+
+
+def world_frame_map(env, height: int | None = None) -> Tensor:
+    """The env map resampled so that a plain ``envmap_lookup`` with WORLD directions sees the
+    rotated map (for code that takes a bare image, e.g. the stage-2 indirect estimate).
+
+    Args:
+        env: :class:`voxnero.render.envmap.EnvMap` (with up / yaw).
+        height: output height (default the map's).
+
+    Returns:
+        (H, 2H, 3) linear map; exactly ``env.img`` when the rotation is the identity.
+    """
+    from voxnero.render.envmap import pixel_dirs
+
+    if env._identity and height is None:
+        return env.img
+    H = height or env.img.shape[0]
+    d = pixel_dirs(H, 2 * H, device=env.device)
+    return env.lookup(d.reshape(-1, 3)).reshape(H, 2 * H, 3)
+
+
+class Relighter:
+    """Path tracer of one asset under one env map (see the module docstring).
+
+    Args:
+        asset: the :class:`voxnero.relight.asset.Asset` (input frame).
+        env: :class:`voxnero.render.envmap.EnvMap` already oriented (up, yaw) for the world.
+        cfg: :class:`RelightConfig`.
+        device: torch device of the shading (ray casts run in Open3D on the CPU).
+    """
+
+    def __init__(self, asset, env, cfg: RelightConfig, device: torch.device | str = "cpu"):
+        from voxnero.data.scene import Normalisation
+        from voxnero.material.lights import IndirectLight
+        from voxnero.material.surface import Geometry
+
+        self.asset, self.env, self.cfg = asset, env, cfg
+        self.device = torch.device(device)
+        c, r = asset.bounds()
+        self.norm = Normalisation(c, max(r, 1e-9))
+        self.geom = Geometry.from_legacy(asset.legacy_mesh(self.norm))
+        self.tail = IndirectLight(world_frame_map(env)) if cfg.tail == "splitsum" else None
+        self.exposure = 2.0 ** cfg.exposure
+
+    # -- shading
+    def _material(self, tri: Tensor, bary: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        a, m, r = self.asset.material_at(tri.cpu(), bary.cpu())
+        return a.to(self.device), m.to(self.device), r.to(self.device)
+
+    def shade_hits(self, tri: Tensor, bary: Tensor, v: Tensor, depth: int,
+                   generator: torch.Generator | None = None) -> Tensor:
+        """Outgoing radiance of surface hits toward ``v``.
+
+        Args:
+            tri: (N,) long hit triangles; bary: (N, 3) barycentrics (CPU).
+            v: (N, 3) unit directions toward the viewer / previous vertex.
+            depth: 0 for primary hits (sets dirs vs bounce_dirs and the recursion depth).
+            generator: random stream.
+
+        Returns:
+            (N, 3) linear radiance (before exposure).
+        """
+        from voxnero.material.surface import RAY_EPS
+        from voxnero.render.estimator import shade_mc
+
+        dev = self.device
+        g = self.geom
+        x = g.points_at(tri, bary).to(dev)
+        n = g.normals_at(tri, bary).to(dev)
+        v = v.to(dev)
+        # interpolated normals can face away from the viewer at silhouettes: bend them so that
+        # n.v >= 1e-3 (else the BRDF is 0 there and such pixels turn black)
+        nv = (n * v).sum(-1, keepdim=True)
+        n = torch.nn.functional.normalize(n + (1e-3 - nv).clamp_min(0.0) * v, dim=-1)
+        nf = g.face_normals[tri].to(dev)
+        nf = nf * torch.where((nf * n).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+        xo = x + RAY_EPS * nf  # secondary-ray origins off the surface, on the lit side
+        a, m, r = self._material(tri, bary)
+
+        def visibility(o: Tensor, d: Tensor) -> Tensor:
+            return (~g.occluded(o.cpu(), d.cpu())).to(dev)
+
+        def indirect(o: Tensor, d: Tensor) -> Tensor:
+            return self._incoming(o, d, depth + 1, generator)
+
+        n_dirs = self.cfg.dirs if depth == 0 else self.cfg.bounce_dirs
+        use_ind = depth + 1 < self.cfg.bounces or self.tail is not None
+        return shade_mc(xo, n, v, a, m, r, self.env, n_dirs, visibility=visibility,
+                        indirect=indirect if use_ind else None, strategy=self.cfg.strategy,
+                        generator=generator, ray_offset=0.0)
+
+    def _incoming(self, o: Tensor, d: Tensor, depth: int,
+                  generator: torch.Generator | None) -> Tensor:
+        """Radiance arriving at o from direction d (rays known to hit the mesh)."""
+        _, tri, bary = self.geom.cast(o.cpu(), d.cpu())
+        out = self.env.lookup(d.to(self.device))
+        hit = tri >= 0
+        if not hit.any():
+            return out
+        idx = hit.nonzero()[:, 0]
+        t, b = tri[idx], bary[idx]
+        wo = -d[idx.to(d.device)].to(self.device)
+        if depth < self.cfg.bounces:
+            val = self.shade_hits(t, b, wo, depth, generator)
+        else:
+            n = self.geom.normals_at(t, b).to(self.device)
+            a, m, r = self._material(t, b)
+            val = self.tail.radiance(n, wo, a, m, r)
+        return out.index_put((idx.to(self.device),), val)
+
+    def radiance(self, o: Tensor, d: Tensor, generator: torch.Generator | None = None
+                 ) -> tuple[Tensor, Tensor]:
+        """Radiance along camera rays (unit frame of the renderer).
+
+        Args:
+            o: (N, 3) origins; d: (N, 3) unit directions.
+
+        Returns:
+            (N, 3) linear radiance (before exposure) and (N,) bool hit mask.
+        """
+        _, tri, bary = self.geom.cast(o.cpu(), d.cpu())
+        out = self.env.lookup(d.to(self.device))
+        hit = tri >= 0
+        if hit.any():
+            idx = hit.nonzero()[:, 0]
+            val = self.shade_hits(tri[idx], bary[idx], -d[idx].to(self.device), 0, generator)
+            out = out.index_put((idx.to(self.device),), val)
+        return out, hit
+
+    # -- images
+    def unit_cameras(self, cameras):
+        """Cameras (input frame) mapped into the renderer's unit frame."""
+        from voxnero.cameras.cameras import Cameras
+
+        c2w = cameras.c2w.clone()
+        c2w[:, :3, 3] = self.norm.to_unit(c2w[:, :3, 3].double()).float()
+        return Cameras(cameras.K.clone(), c2w, cameras.width, cameras.height)
+
+    def render(self, cameras, index: int, generator: torch.Generator | None = None,
+               window: tuple[int, int, int, int] | None = None,
+               progress=None) -> dict[str, Tensor]:
+        """Render one view.
+
+        Args:
+            cameras: :class:`voxnero.cameras.cameras.Cameras` in the INPUT frame.
+            index: which camera.
+            generator: random stream (pixel jitter and shading samples).
+            window: (row0, col0, rows, cols) crop of the image (default all of it).
+            progress: optional tqdm bar, advanced by the number of pixels done.
+
+        Returns:
+            ``rgb`` (rows, cols, 3) linear radiance × 2**exposure (box-filtered pixel averages),
+            ``alpha`` (rows, cols) fraction of primary rays hitting the asset.
+        """
+        from voxnero.cameras.rays import pixel_rays
+
+        cams = self.unit_cameras(cameras[index])
+        H, W = cams.height, cams.width
+        spp = self.cfg.spp
+        pix = pixel_samples(H, W, spp, generator, window)  # (h, w, spp, 2)
+        h, w = pix.shape[:2]
+        flat = pix.reshape(-1, 2)
+        rgb = torch.zeros(flat.shape[0], 3, device=self.device)
+        hit = torch.zeros(flat.shape[0], dtype=torch.bool)
+        step = max(spp, (self.cfg.chunk // spp) * spp)
+        for s in range(0, flat.shape[0], step):
+            p = flat[s:s + step]
+            o, d = pixel_rays(cams, torch.zeros(p.shape[0], dtype=torch.long), p)
+            with torch.no_grad():
+                rgb[s:s + step], hit[s:s + step] = self.radiance(o, d, generator)
+            if progress is not None:
+                progress.update(p.shape[0] // spp)
+        rgb = rgb.reshape(h, w, spp, 3).mean(2) * self.exposure
+        alpha = hit.reshape(h, w, spp).float().mean(2)
+        return {"rgb": rgb.cpu(), "alpha": alpha}
+
+
+def load_env(path, up: np.ndarray, cfg: RelightConfig, device: torch.device | str = "cpu"):
+    """Read an equirectangular ``.exr``/``.hdr`` map as an oriented :class:`EnvMap`.
+
+    Args:
+        path: map file (+Z up in its own frame, dev-scene convention).
+        up: (3,) world up axis of the asset's frame.
+        cfg: uses ``yaw_deg`` and ``env_scale``.
+        device: torch device.
+    """
+    from voxnero.render.envmap import EnvMap
+
+    return EnvMap.from_file(path, up=up_axis_name(up), yaw_deg=cfg.yaw_deg,
+                            scale=cfg.env_scale, device=device)
