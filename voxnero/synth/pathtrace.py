@@ -19,6 +19,8 @@ Radiance is linear (the env map's units). Randomness comes from a caller's ``tor
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 
 from voxnero.render.brdf import brdf_eval, f0_from, fresnel_schlick, roughness_to_alpha
@@ -70,7 +72,7 @@ def bsdf_pdf(n: torch.Tensor, v: torch.Tensor, l: torch.Tensor, alpha: torch.Ten
 
 def trace_paths(geometry: Union, materials: MaterialTable, env, o: torch.Tensor,
                 d: torch.Tensor, max_depth: int = 3,
-                generator: torch.Generator | None = None
+                generator: torch.Generator | None = None, brdf: Callable = brdf_eval
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Radiance arriving at ray origins from direction −d, by path tracing.
 
@@ -82,6 +84,9 @@ def trace_paths(geometry: Union, materials: MaterialTable, env, o: torch.Tensor,
         d: (N, 3) unit ray directions (world).
         max_depth: number of surface interactions (≥ 1).
         generator: random generator (CPU) for reproducible noise.
+        brdf: the BRDF, signature of :func:`voxnero.render.brdf.brdf_eval` (the default; tests
+            pass a pure Lambertian one for the white furnace). Sampling stays the cosine/GGX
+            mixture, so any BRDF is estimated without bias.
 
     Returns:
         (N, 3) linear radiance, and the primary intersection: t (N,) (``inf`` on a miss) and
@@ -130,7 +135,7 @@ def trace_paths(geometry: Union, materials: MaterialTable, env, o: torch.Tensor,
             _, blocked, _ = geometry.intersect(x_off[k], l_e[k])
             k = k[~blocked]
             if k.numel():
-                f = brdf_eval(n[k], v[k], l_e[k], albedo[k], metallic[k], rough[k])
+                f = brdf(n[k], v[k], l_e[k], albedo[k], metallic[k], rough[k])
                 w = _mis(pdf_e[k], bsdf_pdf(n[k], v[k], l_e[k], alpha[k], p_spec[k]))
                 contrib = f * (cos_e[k] * w / pdf_e[k])[:, None] * env.lookup(l_e[k])
                 L.index_add_(0, idx[k], beta[k] * contrib)
@@ -143,7 +148,7 @@ def trace_paths(geometry: Union, materials: MaterialTable, env, o: torch.Tensor,
         pdf = bsdf_pdf(n, v, l, alpha, p_spec)
         cos_l = (n * l).sum(-1)
         ok = (cos_l > 0) & (pdf > 0) & (n_dot_v > 0)
-        f = brdf_eval(n, v, l, albedo, metallic, rough)
+        f = brdf(n, v, l, albedo, metallic, rough)
         beta = beta * f * (cos_l / pdf.clamp_min(1e-30))[:, None]
         ok &= torch.isfinite(beta).all(-1) & (beta.amax(-1) > 0)
         idx, beta, prev_pdf = idx[ok], beta[ok], pdf[ok]
