@@ -89,7 +89,8 @@ def _mesh_points(path) -> np.ndarray:
 
     mesh = o3d.io.read_triangle_mesh(str(path))
     assert len(mesh.triangles) > 100
-    return np.asarray(mesh.sample_points_uniformly(20000, seed=0).points)
+    o3d.utility.random.seed(0)
+    return np.asarray(mesh.sample_points_uniformly(number_of_points=20000).points)
 
 
 @pytest.fixture(scope="module")

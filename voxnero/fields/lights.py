@@ -34,11 +34,12 @@ class EnvLight(nn.Module):
         height: H.
         init: initial linear radiance (uniform).
         max_log: upper clamp of the log radiance (numerical safety).
-        levels: mip levels of the roughness pre-filter chain.
+        levels: mip levels of the roughness pre-filter chain (None: down to 2 rows, so that
+            roughness 1 reaches its level, see ``envmap.roughness_to_level``).
     """
 
     def __init__(self, height: int = 64, init: float = 0.5, max_log: float = 4.0,
-                 levels: int = 6):
+                 levels: int | None = None):
         super().__init__()
         self.log_radiance = nn.Parameter(torch.full((height, 2 * height, 3), math.log(init)))
         self.max_log = max_log

@@ -25,14 +25,14 @@ class GridConfig:
     upsample_at: list[float] = field(default_factory=lambda: [0.3])
     """Fractions of ``iters`` at which to move to the next resolution (len(res) − 1 values)."""
     bound: float = 1.05
-    init_radius: float = 0.75
+    init_radius: float = 0.7
     """Radius of the initial SDF sphere: start around the object and carve inward, but leave
     background visible in every view (the unit sphere is the largest one every view sees whole):
     from 0.95 nothing was carved in 90 s on sphere_gold, the env map had no background to learn."""
     normals: Literal["analytic", "fd"] = "analytic"
     fd_step: float = 1.0
     """Central-difference half-step in voxels (normals: fd)."""
-    feat_res: int = 32
+    feat_res: int = 8
     feat_dim: int = 8
 
 
@@ -55,6 +55,12 @@ class SamplingConfig:
 class NeusConfig:
     """Scheduled NeuS sharpness (1/length)."""
 
+    alpha: Literal["sequence", "section"] = "sequence"
+    """"sequence": opacity of the interval between consecutive samples from their SDF values
+    (NeuS eq. 13 as such); "section": NeuS's per-sample sections with the SDF extrapolated by the
+    directional derivative ∇f·d. On a grid the derivative path made the colour gradient *grow*
+    a too-large sphere (the slope between neighbouring voxels dominates), so "section" did not
+    carve at all (docs/STAGE1.md)."""
     s_start: float = 30.0
     s_end: float = 400.0
     ramp: float = 0.6
@@ -99,7 +105,7 @@ class LossConfig:
 class OptimConfig:
     """Adam learning rates per parameter group and decay."""
 
-    lr_sdf: float = 3e-3
+    lr_sdf: float = 1e-2
     lr_feat: float = 1e-2
     lr_heads: float = 3e-3
     lr_env: float = 3e-2

@@ -26,6 +26,19 @@ def camera_response(pred: torch.Tensor, target: torch.Tensor, sat: float = 0.999
     return clipped.clamp(min=0.0)
 
 
+_SRGB_SLOPE_AT_1 = 1.055 / 2.4
+"""d sRGB / d linear at linear = 1."""
+
+
+def encode_unclipped(x: torch.Tensor) -> torch.Tensor:
+    """sRGB encoding of ``x ≥ 0`` continued linearly above 1 (same slope as at 1).
+
+    :func:`voxnero.io.color.linear_to_srgb` clips at 1, which would give a too-bright prediction
+    of an unsaturated pixel no gradient; the continuation keeps one.
+    """
+    return linear_to_srgb(x.clamp(max=1.0)) + _SRGB_SLOPE_AT_1 * torch.relu(x - 1.0)
+
+
 def charbonnier(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-3) -> torch.Tensor:
     """Mean Charbonnier penalty ``sqrt((pred − target)² + eps²) − eps`` (a smooth L1)."""
     return (torch.sqrt((pred - target) ** 2 + eps * eps) - eps).mean()
@@ -37,7 +50,7 @@ def color_loss(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-3,
     compared in sRGB (perceptually even, as the photos were stored) or linear space."""
     p = camera_response(pred, target)
     if space == "srgb":
-        return charbonnier(linear_to_srgb(p), linear_to_srgb(target), eps)
+        return charbonnier(encode_unclipped(p), linear_to_srgb(target), eps)
     return charbonnier(p, target, eps)
 
 

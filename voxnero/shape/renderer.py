@@ -138,9 +138,15 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
     sdf = sdf.view(z.shape)
     grad3 = grad.view(*z.shape, 3)
     mark("grid")
-    cos = (grad3 * d[:, None]).sum(-1)
-    dists = interval_lengths(z, n0, f0)
-    w = composite_weights(alpha_from_samples(sdf, cos, dists, s))
+    if cfg.neus.alpha == "sequence":
+        # opacity of the intervals between consecutive samples from their SDF values only
+        w = composite_weights(alpha_from_sdf_sequence(sdf, z, s))
+        pts = 0.5 * (pts[:, 1:] + pts[:, :-1])
+        grad3 = 0.5 * (grad3[:, 1:] + grad3[:, :-1])
+    else:
+        cos = (grad3 * d[:, None]).sum(-1)
+        dists = interval_lengths(z, n0, f0)
+        w = composite_weights(alpha_from_samples(sdf, cos, dists, s))
     acc = w.sum(-1)
     mark("neus")
     # 3. deferred shading at the weight-averaged point / normal

@@ -1,0 +1,35 @@
+"""Tests of voxnero/shape/shading.py: reflection geometry and limits of the split-sum shading."""
+
+from __future__ import annotations
+
+import torch
+
+from voxnero.shape.shading import reflect, shade
+
+
+def test_reflect_mirror_law():
+    d = torch.nn.functional.normalize(torch.randn(50, 3), dim=-1)
+    n = torch.nn.functional.normalize(torch.randn(50, 3), dim=-1)
+    r = reflect(d, n)
+    assert torch.allclose(r.norm(dim=-1), torch.ones(50), atol=1e-5)
+    # angle of incidence = angle of reflection, and d + r is parallel to... the tangent plane
+    assert torch.allclose((r * n).sum(-1), -(d * n).sum(-1), atol=1e-5)
+    t = d + r
+    assert torch.allclose((t * n).sum(-1), torch.zeros(50), atol=1e-5)
+
+
+def test_lambert_limit_and_metal_colour():
+    n = torch.tensor([[0.0, 0.0, 1.0]])
+    d = torch.tensor([[0.0, 0.0, -1.0]])
+    alb = torch.tensor([[0.2, 0.5, 0.8]])
+    diff = torch.tensor([[1.0, 1.0, 1.0]])
+    black = torch.zeros(1, 3)
+    rough = torch.tensor([[0.5]])
+    # dielectric under diffuse-only light: exactly albedo · L_diff
+    c = shade(n, d, alb, torch.zeros(1, 1), rough, black, diff)
+    assert torch.allclose(c, alb, atol=1e-6)
+    # metal: no diffuse; under white specular light the colour follows the albedo (F0 = albedo)
+    c = shade(n, d, alb, torch.ones(1, 1), torch.tensor([[0.05]]), torch.ones(1, 3), diff)
+    assert torch.allclose(c / c.max(), alb / alb.max(), atol=0.02)
+    # a smooth metal facing the viewer reflects about F0 = albedo of the light
+    assert torch.allclose(c, alb, atol=0.05)
