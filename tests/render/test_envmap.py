@@ -274,3 +274,23 @@ def read_envmap_np(path):
     from voxnero.io.exr import read_envmap
 
     return read_envmap(path)
+
+
+def test_learnable_path_extremes_finite_grads():
+    # stage 1's path: exp(log map) -> mip chain -> lookup_rough -> split-sum, and SH9 diffuse;
+    # poles, zero-length and non-unit directions, roughness 0 / 1 / out of range, n.v <= 0
+    from voxnero.render.splitsum import specular_split_sum
+
+    log = torch.randn(32, 64, 3, requires_grad=True)
+    img = torch.exp(log) * 1e5
+    chain = mip_chain(img)
+    d = torch.tensor([[0.0, 0, 1], [0, 0, -1], [0, 0, 0], [1, 0, 1e-7], [3, 4, 0]],
+                     requires_grad=True)
+    r = torch.tensor([[0.0], [1.0], [1e-9], [0.5], [2.0]], requires_grad=True)
+    nv = torch.tensor([[1.0], [0.0], [-1.0], [1e-6], [0.5]], requires_grad=True)
+    spec = specular_split_sum(torch.ones(5, 3), nv, r, lookup_rough(chain, d, r))
+    diff = sh9_irradiance(sh9_project(img), d)
+    (spec.sum() + diff.sum()).backward()
+    assert torch.isfinite(spec).all() and torch.isfinite(diff).all()
+    for t in (log, d, r, nv):
+        assert torch.isfinite(t.grad).all()
