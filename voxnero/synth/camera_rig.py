@@ -58,6 +58,8 @@ def offset_lattice(n_test: int, train_dirs: np.ndarray, elev_range_deg: tuple[fl
     Returns:
         (dirs (n_test, 3), info) with info = {offset, phase, min_angle_test_to_train_deg}.
     """
+    if n_test == 0:
+        return np.zeros((0, 3)), {"min_angle_test_to_train_deg": None}
     rng = np.random.default_rng(seed)
     best, best_info = None, {"min_angle_test_to_train_deg": -1.0}
     for _ in range(tries):
