@@ -156,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
         s = cfg.render.eval_scale
         spp = Strategies(cfg.render.spp_cos * s, cfg.render.spp_ggx * s, cfg.render.spp_env * s)
         metrics.update(evaluate_scene(scene_path, geom, trainer.field, env, spp,
-                                      trainer.use_indirect, cfg.render.visibility,
+                                      trainer.use_indirect, trainer.visibility,
                                       cfg.eval_views, out / "eval"))
         times["eval_s"] = time.perf_counter() - t3
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1, default=str))

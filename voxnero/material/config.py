@@ -25,7 +25,7 @@ class FieldConfig:
     smooth: float = 0.05
     """Weight of the smoothness regulariser (mean squared difference of neighbours)."""
     init_albedo: float = 0.5
-    init_metallic: float = 0.2
+    init_metallic: float = 0.5
     init_roughness: float = 0.4
     range_prior: float = 1e-3
     """Weak pull of metallic toward 0 or 1 (m (1 − m)) and of every raw value toward 0."""

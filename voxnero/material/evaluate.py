@@ -8,8 +8,8 @@ clipped linear render, as the 8-bit images were made:
 * novel views (``test``): PSNR / SSIM of the whole image and PSNR of fully covered pixels
   (mask = 1, evaluation-only masks);
 * relighting (``test_relight_<env>`` with ``gt/envmap_<env>.exr``): the object under the new map,
-  a per-channel scale fitted on linear values of fully covered pixels (albedo–light ambiguity),
-  PSNR / SSIM there;
+  a per-channel scale fitted on linear values of fully covered pixels that are not clipped in the
+  8-bit target (albedo–light ambiguity), PSNR / SSIM on the fully covered pixels;
 * material maps: metallic and roughness MAE at fully covered test pixels vs
   ``gt/test_metallic``, ``gt/test_roughness``; albedo PSNR after a per-channel scale.
 """
@@ -167,7 +167,10 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
             if not full.any():
                 continue
             gt = sp.images[i]
-            sc = fit_channel_scale(r["rgb"], gt, full)
+            # fit the scale where the 8-bit target is not clipped (a sun's reflection is
+            # hundreds of times brighter than 1 in the render and 1 in the photo)
+            unclipped = full & (gt.amax(-1) < 0.99)
+            sc = fit_channel_scale(r["rgb"], gt, unclipped if unclipped.any() else full)
             pred = srgb(r["rgb"] * sc)
             vals["psnr"].append(psnr(pred, srgb(gt), full))
             vals["ssim"].append(ssim(torch.where(full[..., None], pred, 0 * pred),

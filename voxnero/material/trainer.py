@@ -82,10 +82,14 @@ class MaterialTrainer:
         frac = needs_indirect(geom, cache, generator=self.gen) if cfg.render.visibility else 0.0
         mode = cfg.light.indirect
         self.use_indirect = mode == "splitsum" or (mode == "auto" and frac > 1e-3)
+        # no secondary ray of a convex object hits it: skip the casts (exactly the same result)
+        self.visibility = cfg.render.visibility and frac > 0
         self.decisions = {"secondary_hit_fraction": frac, "indirect": self.use_indirect,
+                          "visibility_casts": self.visibility,
                           "env_sampling": env_sampler(torch.ones(4, 8, 3)) is not None}
         log(f"[material] secondary rays hitting the object: {100 * frac:.2f} % -> indirect "
-            f"light {'on' if self.use_indirect else 'off'}; env-map importance sampling "
+            f"light {'on' if self.use_indirect else 'off'}, visibility casts "
+            f"{'on' if self.visibility else 'off'}; env-map importance sampling "
             f"{'on' if self.decisions['env_sampling'] else 'unavailable (shading core)'}")
         self.step = 0
         self._make_optimisers()
@@ -122,15 +126,15 @@ class MaterialTrainer:
             # estimate is less noisy (e.g. lower roughness)
             idx2 = torch.cat([idx, idx])
             pred = shade(self.geom, self.field, img, c.tri[idx2], c.bary[idx2], c.x[idx2],
-                         c.n[idx2], c.v[idx2], self.spp, indirect, sampler,
-                         cfg.render.visibility, self.gen)
+                             c.n[idx2], c.v[idx2], self.spp, indirect, sampler,
+                         self.visibility, self.gen)
             p1, p2 = srgb_clipped(pred).chunk(2)
             obj = ((p1 - target) * (p2 - target)).mean()
             mse = ((0.5 * (p1 + p2) - target) ** 2).mean().detach()
         else:
             pred = shade(self.geom, self.field, img, c.tri[idx], c.bary[idx], c.x[idx],
                          c.n[idx], c.v[idx], self.spp, indirect, sampler,
-                         cfg.render.visibility, self.gen)
+                         self.visibility, self.gen)
             obj = ((srgb_clipped(pred) - target) ** 2).mean()
             mse = obj.detach()
         terms = {"object": obj}
