@@ -9,11 +9,13 @@ f/F = D G / (4 n.v n.l) and G the separable Smith term of ``brdf.py``. The table
 here by importance sampling the visible normals (``sampling.sample_ggx_vndf``, whose weight
 f (n.l) / pdf = F G1(l) is bounded) on a 2-D Hammersley point set, on a grid of
 ``TABLE_RES x TABLE_RES`` nodes n.v_i = (i / (R - 1))^2 (uniform in sqrt(n.v), dense at grazing
-angles where A and B change fastest; n.v = 0 evaluated at NV_MIN), roughness r_j = j / (R - 1)
-(alpha = max(r^2, ALPHA_MIN)). It is cached on disk under
-``$VOXNERO_CACHE`` or ``~/.cache/voxnero`` (and in memory per device); building it takes about
-a second on 2 CPU cores (see docs/BENCHMARKS.md). Lookups are bilinear in (n.v, r) and
-differentiable in both.
+angles where A and B change fastest; n.v = 0 evaluated at NV_MIN) and perceptual roughness
+r_j = (j / (R - 1))^2 (dense near the mirror limit; alpha = max(r^2, ALPHA_MIN)); 4096 samples
+per node. Measured accuracy: < 1e-3 against independent quadrature and 32k-sample MC
+(tests/render/test_splitsum.py). It is cached on disk under
+``$VOXNERO_CACHE`` or ``~/.cache/voxnero`` (and in memory per device); building it takes
+~9 s on one busy core of the 2-core dev machine (docs/BENCHMARKS.md), once per machine.
+Lookups are bilinear in (sqrt(n.v), sqrt(r)) and differentiable in both.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from voxnero.render.sampling import NV_MIN, sample_vndf_local
 
 TABLE_RES = 64
 TABLE_SAMPLES = 4096
-_VERSION = 3
+_VERSION = 4
 _MEMO: dict[tuple[str, int, int], Tensor] = {}
 
 
@@ -88,7 +90,8 @@ def build_table(res: int = TABLE_RES, n_samples: int = TABLE_SAMPLES) -> Tensor:
     """Compute the (res, res, 2) table [sqrt(n.v) index, roughness index, (A, B)], float32."""
     g = torch.linspace(0.0, 1.0, res, dtype=torch.float64)
     nv, r = torch.meshgrid(g * g, g * g, indexing="ij")
-    A, B = integrate_ab(nv.reshape(-1), r.reshape(-1), n_samples)
+    # float32 samples (float64 sums): 1.7x faster, within 5e-5 of a float64 build
+    A, B = integrate_ab(nv.reshape(-1), r.reshape(-1), n_samples, dtype=torch.float32)
     return torch.stack([A, B], -1).reshape(res, res, 2).float()
 
 
