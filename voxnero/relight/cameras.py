@@ -22,15 +22,16 @@ from voxnero.cameras.cameras import Cameras, opengl_to_opencv
 from voxnero.errors import DataError
 
 
-def scene_cameras(scene: str | Path, split: str = "test") -> tuple[Cameras, list[str]]:
-    """Cameras of one split of a scene, input frame.
+def scene_cameras(scene: str | Path, split: str = "test"
+                  ) -> tuple[Cameras, list[str], np.ndarray]:
+    """Cameras of one split of a scene, input frame, and the split's photos.
 
     Args:
         scene: scene folder (Blender / NeRO / COLMAP).
         split: split name.
 
     Returns:
-        (cameras with c2w in the input frame, image names).
+        (cameras with c2w in the input frame, image names, (N, H, W, 3) LINEAR images).
     """
     from voxnero.data.detect import available_splits, load_scene
 
@@ -42,7 +43,8 @@ def scene_cameras(scene: str | Path, split: str = "test") -> tuple[Cameras, list
     sp = sc.split(split)
     c2w = sp.cameras.c2w.clone()
     c2w[:, :3, 3] = sc.norm.to_input(c2w[:, :3, 3].double()).float()
-    return Cameras(sp.cameras.K.clone(), c2w, sp.cameras.width, sp.cameras.height), list(sp.names)
+    return (Cameras(sp.cameras.K.clone(), c2w, sp.cameras.width, sp.cameras.height),
+            list(sp.names), sp.images.numpy())
 
 
 def transforms_cameras(path: str | Path) -> tuple[Cameras, list[str]]:
