@@ -303,10 +303,25 @@ def lookup_rough(chain: list[Tensor], d: Tensor, roughness: Tensor) -> Tensor:
         (..., C) filtered radiance (level 0 exactly while 2 alpha <= dtheta_0, i.e.
         r <= sqrt(dtheta_0 / 2) = 0.078 for H = 256).
     """
+    lev = roughness_to_level(roughness, chain[0].shape[0], len(chain))  # (..., 1)
+    return lookup_levels(chain, d, lev)
+
+
+def lookup_levels(chain: list[Tensor], d: Tensor, level: Tensor) -> Tensor:
+    """Bilinear lookup at a fractional mip level (linear blend of the two nearest levels).
+
+    Args:
+        chain: output of ``mip_chain``.
+        d: (..., 3) directions.
+        level: (...) or (..., 1) fractional level in [0, len(chain) - 1].
+
+    Returns:
+        (..., C) radiance; differentiable w.r.t. the chain, d and level.
+    """
     L = len(chain)
-    lev = roughness_to_level(roughness, chain[0].shape[0], L)  # (..., 1)
     lead = d.shape[:-1]
     uv = dir_to_uv(d.reshape(-1, 3).to(torch.float64))
+    lev = level
     if lev.dim() == len(lead):
         lev = lev.unsqueeze(-1)
     lev = lev.expand(*lead, 1).reshape(-1)
@@ -523,19 +538,15 @@ class EnvMap:
             acc = torch.zeros(n.shape[0], 3, device=self.device)
             wsum = torch.zeros(n.shape[0], 1, device=self.device)
             nn_ = n.expand(-1, n_samples, 3).reshape(-1, 3)
+            uu = u.repeat(n.shape[0], 1)
             for s0 in range(0, nn_.shape[0], 1 << 18):
                 nb = nn_[s0:s0 + (1 << 18)]
-                ub = u.repeat(n.shape[0], 1)[s0:s0 + (1 << 18)]
+                ub = uu[s0:s0 + (1 << 18)]
                 l, pdf = sample_ggx_vndf(ub, nb, nb, a)
                 cos = (l * nb).sum(-1).clamp_min(0.0)
                 # filtered importance sampling (Krivanek & Colbert 2008): mip level by pdf
                 lev_s = (0.5 * torch.log2(1.0 / (n_samples * pdf.clamp_min(1e-12) * om0)) + 1.0)
-                lev_s = lev_s.clamp(0.0, len(chain) - 1)[:, None]
-                val = 0.0
-                for k, img in enumerate(chain):
-                    wk = (1.0 - (lev_s - k).abs()).clamp_min(0.0)
-                    if bool((wk > 0).any()):
-                        val = val + wk * envmap_lookup(img, l)
+                val = lookup_levels(chain, l, lev_s.clamp(0.0, len(chain) - 1))
                 idx = torch.arange(s0, s0 + nb.shape[0], device=self.device) // n_samples
                 acc.index_add_(0, idx, val * cos[:, None])
                 wsum.index_add_(0, idx, cos[:, None])
@@ -547,7 +558,7 @@ class EnvMap:
 
         Precomputed at ``PREFILTER_ROUGHNESS`` by filtered importance sampling (32 GGX samples
         per texel, mip level from the sample pdf; first call with r > 0 on a 512 x 256 map:
-        ~10 s on 2 busy cores) and interpolated linearly in roughness; roughness 0 is the map
+        ~8 s on one busy core) and interpolated linearly in roughness; roughness 0 is the map
         itself (no precomputation needed while all roughness values are 0).
 
         Args:
