@@ -19,10 +19,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import open3d as o3d
 import torch
+
+if TYPE_CHECKING:
+    import open3d as o3d
 
 HIT_EPS = 1e-5
 """Sphere tracing stops when the SDF falls below this distance (scene units)."""
@@ -106,6 +109,8 @@ class Sphere:
         Subdivision level 5 (20 480 triangles) has a maximum chord deviation of about
         1.9e-4·radius (the largest edge is ≈ 0.039·radius; sagitta ≈ edge²/(8·radius)).
         """
+        import open3d as o3d  # lazy: a 2 s import that only the GT mesh needs
+
         m = o3d.geometry.TriangleMesh.create_icosahedron(radius=1.0)
         for _ in range(subdivisions):
             m = m.subdivide_midpoint(number_of_iterations=1)
@@ -225,6 +230,8 @@ class Torus:
         Chord deviation ≤ (R + r)(1 − cos(π/n_major)) + r(1 − cos(π/n_minor)), ≈ 4.6e-5 for
         the defaults and R 0.62, r 0.26.
         """
+        import open3d as o3d
+
         R, r = self.major_radius, self.minor_radius
         u = np.arange(n_major) * (2 * np.pi / n_major)
         v = np.arange(n_minor) * (2 * np.pi / n_minor)
@@ -292,6 +299,8 @@ class Union:
 
     def mesh(self) -> o3d.geometry.TriangleMesh:
         """All shapes' meshes in one TriangleMesh (with vertex normals)."""
+        import open3d as o3d
+
         out = o3d.geometry.TriangleMesh()
         for s in self.shapes:
             out += s.mesh()

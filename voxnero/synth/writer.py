@@ -21,14 +21,17 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import open3d as o3d
 
 from voxnero.cameras.cameras import opencv_to_opengl
 from voxnero.io.color import linear_to_srgb
 from voxnero.io.exr import write_exr
 from voxnero.io.images import write_png
+
+if TYPE_CHECKING:
+    import open3d as o3d
 
 
 def frame_name(index: int) -> str:
@@ -88,6 +91,8 @@ def write_gt_maps(root: Path, index: int, maps: dict[str, np.ndarray]) -> None:
 
 def write_mesh(path: Path, mesh: o3d.geometry.TriangleMesh) -> None:
     """Binary PLY with vertex normals (world frame)."""
+    import open3d as o3d  # lazy: slow import
+
     path.parent.mkdir(parents=True, exist_ok=True)
     if not o3d.io.write_triangle_mesh(str(path), mesh, write_ascii=False,
                                       write_vertex_normals=True):
