@@ -3,6 +3,8 @@
 Monte Carlo tolerances are stated from the estimator's own per-sample standard deviation σ₁,
 pooled over all samples of the image (so it is not fitted per pixel): a pixel mean of ``spp``
 samples must lie within 5·σ₁/√spp of the expected value, the image mean within 5·σ₁/√(N·spp).
+Measured (32², 64 spp, ~220 fully covered pixels): Lambert σ₁ ≈ 0.32·E, so pixels within ±0.20·E
+and the image mean within ±0.014·E (observed 1.002·E); white GGX metal σ₁ ≈ 0.27–0.28·E.
 """
 
 from __future__ import annotations
@@ -75,7 +77,7 @@ def _directional_albedo(mu: torch.Tensor, r: float, n_theta: int) -> torch.Tenso
 @pytest.mark.parametrize("E", [1.0, 0.37])
 def test_white_furnace_lambert_returns_the_environment(E):
     env = EnvMap(torch.as_tensor(constant_envmap(16, E)))
-    L, hit = _samples(Material((1.0, 1.0, 1.0), 0.0, 1.0), env, brdf=lambert)
+    L, hit = _samples(Material((1.0, 1.0, 1.0), 0.0, 1.0), env, spp=64, brdf=lambert)
     obj = hit.all(1)  # fully covered pixels (partly covered ones mix with E as well)
     assert obj.sum() > 150
     s1 = L[obj].std().item()  # per-sample σ₁, pooled
@@ -94,7 +96,7 @@ def test_white_furnace_ggx_never_creates_energy(r, n_theta):
     lobe's directional albedo A(n·v)·E from an independent quadrature of brdf_eval."""
     E = 1.0
     env = EnvMap(torch.as_tensor(constant_envmap(16, E)))
-    spp = 16
+    spp = 64
     L, hit, mu = _samples(Material((1.0, 1.0, 1.0), 1.0, r), env, spp=spp, with_mu=True)
     obj = hit.all(1)
     s1 = L[obj].std().item()
