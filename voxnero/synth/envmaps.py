@@ -17,7 +17,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from voxnero.errors import ConfigError
 
@@ -152,7 +151,3 @@ def load_envmap(source: str, height: int = 128, seed: int = 0, scale: float = 1.
     return (img[..., :3] * scale).astype(np.float32), {"kind": "file", "file": str(path),
                                                        "scale": scale}
 
-
-def to_tensor(img: np.ndarray) -> torch.Tensor:
-    """(H, W, 3) numpy map → float32 torch tensor."""
-    return torch.as_tensor(np.ascontiguousarray(img), dtype=torch.float32)
