@@ -20,8 +20,6 @@ import math
 import torch
 from torch import Tensor
 
-_TINY = 1e-30
-
 
 def _unit(d: Tensor) -> Tensor:
     sq = (d * d).sum(-1, keepdim=True)
