@@ -21,11 +21,6 @@ import torch
 from torch import Tensor
 
 
-def _unit(d: Tensor) -> Tensor:
-    sq = (d * d).sum(-1, keepdim=True)
-    return d * torch.rsqrt(sq.clamp_min(1e-24))
-
-
 def dir_to_theta_phi(d: Tensor) -> tuple[Tensor, Tensor]:
     """Polar angle theta in [0, pi] from +Z and azimuth phi in [0, 2 pi) (phi = atan2(dx, dy)).
 
