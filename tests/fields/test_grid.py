@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -95,3 +97,22 @@ def test_upsample_keeps_field():
     assert grid.res == 17
     assert torch.allclose(grid(q), before, atol=1e-5)
     assert resample(grid.grid.data, 17).shape == (1, 17, 17, 17)
+
+
+def test_gaussian_blur_constant_linear_and_mass():
+    from voxnero.fields.grid import gaussian_blur3d
+
+    c = torch.full((9, 10, 11), 2.5, dtype=torch.float64)
+    assert torch.allclose(gaussian_blur3d(c, 1.0), c)
+    # a linear ramp is preserved away from the borders (symmetric kernel)
+    b = torch.tensor([[-1.0] * 3, [1.0] * 3], dtype=torch.float64)
+    ramp = grid_points((12, 12, 12), b) @ torch.tensor([0.2, -0.5, 0.7], dtype=torch.float64)
+    out = gaussian_blur3d(ramp, 1.0)
+    assert torch.allclose(out[3:-3, 3:-3, 3:-3], ramp[3:-3, 3:-3, 3:-3], atol=1e-10)
+    # an impulse spreads with unit mass and the 1-D Gaussian profile
+    x = torch.zeros(15, 15, 15, dtype=torch.float64)
+    x[7, 7, 7] = 1
+    y = gaussian_blur3d(x, 1.0)
+    assert abs(float(y.sum()) - 1) < 1e-12
+    ratio = float(y[7, 7, 8] / y[7, 7, 7])
+    assert abs(ratio - math.exp(-0.5)) < 1e-9

@@ -16,6 +16,8 @@ eikonal loss or a normal-dependent colour loss trains the grid.
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -95,6 +97,29 @@ def grid_sample_points(grid: torch.Tensor, pts: torch.Tensor, bounds: torch.Tens
     out = F.grid_sample(grid[None], g, mode="bilinear", padding_mode="border",
                         align_corners=True)
     return out.view(grid.shape[0], -1).t()
+
+
+def gaussian_blur3d(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Separable Gaussian blur of a ``(D, H, W)`` grid, ``sigma`` in voxels (replicate borders).
+
+    Used on the SDF grid's *gradient* (Voxurf-style smoothing): every ray's update is spread
+    over neighbouring voxels, so the surface moves as a smooth sheet instead of growing
+    voxel-scale bumps. A constant grid is unchanged; the kernel sums to 1.
+    """
+    if sigma <= 0:
+        return x
+    r = max(1, int(math.ceil(2.0 * sigma)))
+    t = torch.arange(-r, r + 1, device=x.device, dtype=x.dtype)
+    k = torch.exp(-0.5 * (t / sigma) ** 2)
+    k = k / k.sum()
+    y = x[None, None]
+    for dim in range(3):
+        shape = [1, 1, 1, 1, 1]
+        shape[2 + dim] = 2 * r + 1
+        pad = [0, 0, 0, 0, 0, 0]
+        pad[2 * (2 - dim)] = pad[2 * (2 - dim) + 1] = r
+        y = F.conv3d(F.pad(y, pad, mode="replicate"), k.view(shape))
+    return y[0, 0]
 
 
 def grid_points(res: tuple[int, int, int] | int, bounds: torch.Tensor) -> torch.Tensor:

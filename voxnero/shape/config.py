@@ -22,7 +22,7 @@ class GridConfig:
 
     res: list[int] = field(default_factory=lambda: [48, 96])
     """SDF grid resolutions, coarse to fine; the grid is trilinearly upsampled between them."""
-    upsample_at: list[float] = field(default_factory=lambda: [0.3])
+    upsample_at: list[float] = field(default_factory=lambda: [0.5])
     """Fractions of ``iters`` at which to move to the next resolution (len(res) − 1 values)."""
     bound: float = 1.05
     init_radius: float = 0.7
@@ -32,6 +32,9 @@ class GridConfig:
     normals: Literal["analytic", "fd"] = "analytic"
     fd_step: float = 1.0
     """Central-difference half-step in voxels (normals: fd)."""
+    grad_smooth: float = 1.0
+    """Gaussian blur (sigma, voxels) of the SDF grid's gradient before each optimiser step
+    (0 = off): spreads each ray's update over neighbours (against voxel-scale bumps)."""
     feat_res: int = 8
     feat_dim: int = 8
 
@@ -76,8 +79,8 @@ class LightConfig:
     env_init: float = 0.5
     """Initial env radiance (linear)."""
     max_log_radiance: float = 4.0
-    indirect: Switch = "auto"
-    occlusion: Switch = "auto"
+    indirect: Switch = "off"
+    occlusion: Switch = "off"
     metallic: Switch = "auto"
     background: Literal["auto", "distant", "alpha"] = "auto"
     """distant: background pixel = env radiance along the ray; alpha: composite on the known
@@ -92,8 +95,12 @@ class LossConfig:
     charbonnier_eps: float = 1e-3
     color_space: Literal["srgb", "linear"] = "srgb"
     eikonal: float = 0.1
-    laplacian: float = 1e-4
+    laplacian: float = 1e-3
     """Weight of the squared Laplacian of the SDF grid (mean over voxels, in voxel units)."""
+    normal_smooth: float = 0.05
+    """Weight of the normal smoothness between surface points and points jittered by
+    ``normal_smooth_radius`` voxels (0 = off)."""
+    normal_smooth_radius: float = 1.0
     occlusion: float = 1.0
     occlusion_start: float = 0.2
     """Fraction of ``iters`` after which occlusion targets are computed and used."""

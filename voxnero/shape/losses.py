@@ -73,6 +73,17 @@ def laplacian(grid: torch.Tensor, voxel: float) -> torch.Tensor:
     return (lap * lap).mean()
 
 
+def normal_smoothness(n_a: torch.Tensor, n_b: torch.Tensor) -> torch.Tensor:
+    """Mean squared difference of unit normals at nearby surface points ``(N, 3)`` each.
+
+    With ``n_b`` taken a fraction of a voxel away from ``n_a`` this penalises the voxel-scale
+    bumps that a dense grid grows (NeRO/Neuralangelo-style smoothness); 0 for a plane.
+    """
+    if n_a.numel() == 0:
+        return n_a.sum()
+    return ((n_a - n_b) ** 2).sum(-1).mean()
+
+
 def occlusion_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Mean L1 between predicted occlusion ``(N, 1)`` and ray-cast targets ``(N, 1)`` in {0, 1}."""
     if pred.numel() == 0:

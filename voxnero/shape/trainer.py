@@ -31,7 +31,7 @@ import torch
 
 from voxnero.cameras.rays import image_rays, pixel_rays, random_pixels
 from voxnero.config import to_dict
-from voxnero.fields.grid import resample
+from voxnero.fields.grid import gaussian_blur3d, resample
 from voxnero.shape import losses
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.neus import sharpness_schedule
@@ -221,6 +221,16 @@ class ShapeTrainer:
         l_eik = losses.eikonal(out["grad"])
         l_lap = losses.laplacian(m.sdf.grid[0], m.sdf.voxel) if lc.laplacian > 0 else 0.0
         loss = l_col + lc.eikonal * l_eik + lc.laplacian * l_lap
+        l_ns = torch.zeros(())
+        if lc.normal_smooth > 0 and "x" in out:
+            keep = out["acc_hit"] > 0.5
+            x = out["x"][keep]
+            jit = torch.randn(x.shape, generator=self.gen, device=x.device)
+            xj = x + jit * (lc.normal_smooth_radius * m.sdf.voxel)
+            _, g2 = m.sdf.sdf_grad(torch.cat([x, xj]), cfg.grid.normals, cfg.grid.fd_step)
+            g2 = torch.nn.functional.normalize(g2, dim=-1)
+            l_ns = losses.normal_smoothness(g2[:x.shape[0]], g2[x.shape[0]:])
+            loss = loss + lc.normal_smooth * l_ns
         l_occ = torch.zeros(())
         if "occ" in out and self.step >= int(lc.occlusion_start * cfg.iters):
             if self.occ_targets is None or self.step % lc.occlusion_every == 0:
@@ -232,10 +242,14 @@ class ShapeTrainer:
                 loss = loss + lc.occlusion * l_occ
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
+        g = m.sdf.grid
+        if cfg.grid.grad_smooth > 0 and g.grad is not None:
+            g.grad[0] = gaussian_blur3d(g.grad[0], cfg.grid.grad_smooth)
         self.opt.step()
         m.env.release()
         return {"loss": float(loss.detach()), "color": float(l_col.detach()),
                 "eik": float(l_eik.detach()), "occ": float(l_occ.detach()),
+                "nsmooth": float(l_ns.detach()),
                 "psnr": losses.psnr(out["rgb"], target), "s": s, "res": m.sdf.res}
 
     # ------------------------------------------------------------------ surfaces
