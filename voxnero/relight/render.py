@@ -56,9 +56,11 @@ class RelightConfig:
     spp: int = 16
     """Primary rays per pixel (stratified in the pixel footprint: box filter, antialiasing)."""
     dirs: int = 3
-    """Shading directions per primary hit, split over the cosine / GGX / env strategies."""
+    """Shading directions per primary hit, split evenly over the cosine / GGX / env strategies
+    (below 3 the last strategies get none: 1 = cosine only, useless on glossy surfaces)."""
     bounce_dirs: int = 3
-    """Shading directions per secondary hit (each path branches into this many)."""
+    """Shading directions per secondary hit (each path branches into this many; >= 3 keeps
+    all three strategies)."""
     bounces: int = 2
     """Surface interactions traced by Monte Carlo (1 = direct light with shadows)."""
     tail: str = "splitsum"
@@ -81,8 +83,9 @@ class RelightConfig:
     chunk: int = 65536
     """Primary rays cast and shaded at once."""
     seed: int = 0
-    threads: int = 0
-    """torch CPU threads (0 = torch's default)."""
+    threads: int = 1
+    """torch CPU threads (0 = torch's default). On the busy shared 2-core dev machine two
+    threads ran a view 10-25x slower than one (Open3D's ray casts use their own threads)."""
     png: bool = True
     exr: bool = True
     orbit: OrbitConfig = field(default_factory=OrbitConfig)
