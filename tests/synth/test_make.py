@@ -45,7 +45,7 @@ def sphere128(tmp_path_factory):
 def torus64(tmp_path_factory):
     torch.set_num_threads(1)
     out = tmp_path_factory.mktemp("torus64")
-    return make_scene("torus", out, _cfg(resolution=128, n_train=1, n_test=3, spp=4),
+    return make_scene("torus", out, _cfg(resolution=128, n_train=2, n_test=3, spp=4),
                       progress=False)
 
 
@@ -209,3 +209,15 @@ def test_cli_user_errors_exit_2_with_a_message(tmp_path, capsys, argv, msg):
     assert rc == 2
     err = capsys.readouterr().err
     assert msg in err and "Traceback" not in err
+
+
+def test_project_evaluator_scores_the_gt_mesh_near_zero(torus64, tmp_path):
+    """`voxnero eval` (NeRO Chamfer protocol on gt/test_depth) on our own GT mesh: measured
+    Chamfer 0.0017 and normal error 0.37° at 128² (the dev scenes give 0.0018)."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "mesh.ply").write_bytes((torus64 / "gt" / "mesh.ply").read_bytes())
+    assert main(["eval", str(run), "--scene", str(torus64), "--out", str(tmp_path / "ev")]) == 0
+    metrics = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+    assert metrics["chamfer"]["cd"] < 0.0025
+    assert metrics["normals"]["mean_deg"] < 1.0
