@@ -84,6 +84,8 @@ def _make(shape: str, out: Path, cfg: SynthConfig, progress: bool,
                                     cfg.env.scale, cfg.env.constant)
     env = EnvMap(torch.as_tensor(env_img, device=device))
 
+    # EnvMap.sample gathers one float64 CDF row (W values) per sample: keep that ≤ 512 MB
+    chunk = min(cfg.chunk, max(4096, (512 << 20) // (8 * env_img.shape[1])))
     elev = (float(cfg.elevation_range_deg[0]), float(cfg.elevation_range_deg[1]))
     train_dirs = fibonacci_dirs(cfg.n_train, elev)
     test_dirs, rig_info = offset_lattice(cfg.n_test, train_dirs, elev, cfg.seed)
@@ -96,13 +98,13 @@ def _make(shape: str, out: Path, cfg: SynthConfig, progress: bool,
         cams, c2w, focal = _cameras(dirs, cfg)
         cams = cams.to(device)
         write_transforms(out, split, c2w, cfg.resolution, cfg.resolution, focal)
-        group = max(1, cfg.chunk // (cfg.resolution ** 2 * cfg.spp))
+        group = max(1, chunk // (cfg.resolution ** 2 * cfg.spp))
         for g0 in range(0, len(dirs), group):
             views = list(range(g0, min(g0 + group, len(dirs))))
             gen = torch.Generator().manual_seed(
                 (cfg.seed * 1_000_003 + _SPLIT_SEED[split]) * 100_003 + g0)
             imgs, maps = render_views(geometry, table, env, cams, views, cfg.spp,
-                                      cfg.max_depth, gen, cfg.chunk)
+                                      cfg.max_depth, gen, chunk)
             imgs = imgs.cpu().numpy()
             maps = {k: v.cpu().numpy() for k, v in maps.items()}
             for j, i in enumerate(views):
