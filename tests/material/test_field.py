@@ -20,7 +20,7 @@ def test_vertex_field_interpolates_and_initialises():
     assert float(f.smoothness()) < 1e-10
     # at a vertex (bary = e_k) the value is that vertex's own
     with torch.no_grad():
-        f.raw[:, 4] = torch.linspace(-3, 3, geom.n_vertices)
+        f.residual[:, 4] = torch.linspace(-3, 3, geom.n_vertices)
     t = torch.tensor([5])
     for k in range(3):
         b = torch.zeros(1, 3)
@@ -34,6 +34,7 @@ def test_grid_axis_order_matches_point_coordinates():
     f = GridMaterial(res=9)
     c = torch.linspace(-1, 1, 9)
     with torch.no_grad():
+        f.base.zero_()
         # tensor axes are (z, y, x): make the roughness logit equal to x, metallic to z
         f.grid[0, 4] = c.view(1, 1, 9).expand(9, 9, 9)
         f.grid[0, 3] = c.view(9, 1, 1).expand(9, 9, 9)
@@ -47,7 +48,7 @@ def test_grid_axis_order_matches_point_coordinates():
 def test_grid_smoothness_closed_form():
     f = GridMaterial(res=4)
     with torch.no_grad():
-        f.grid.zero_()
+        f.base.zero_()
         f.grid[0, 0, :, :, 2:] = 10.0  # a step along x in albedo R: sigmoid 0.5 -> ~1
     step = torch.sigmoid(torch.tensor(10.0)) - 0.5
     # one of the 3 x-differences per row is the step; mean over 4*4*3 x-pairs

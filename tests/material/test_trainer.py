@@ -24,7 +24,7 @@ def _scene(n_views=8, size=40, spp=(128, 256, 128)):
     cache = build_cache(geom, torch.zeros(n_views, size, size, 3), cams, max_pixels=0)
     truth = GridMaterial(2, 0.5, TRUE["metallic"], TRUE["roughness"])
     with torch.no_grad():
-        truth.grid[0, :3] = torch.logit(torch.tensor(TRUE["albedo"])).view(3, 1, 1, 1)
+        truth.base[:3] = torch.logit(torch.tensor(TRUE["albedo"]))
     g = torch.Generator().manual_seed(7)
     with torch.no_grad():
         tgt = shade(geom, truth, env, cache.tri, cache.bary, cache.x, cache.n, cache.v,
@@ -49,7 +49,9 @@ def test_recovers_albedo_metallic_roughness_with_known_geometry_and_light():
     torch.set_num_threads(1)
     try:
         geom, env, cache = _scene()
-        tr = MaterialTrainer(_cfg(350), geom, cache, log=lambda s: None, env_init=env)
+        cfg = _cfg(350)
+        cfg.field.kind = "vertex"  # the default field: global base + per-vertex residual
+        tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)
         tr.fit(progress=False)
         a, m, r = tr.field(cache.tri, cache.bary, cache.x)
         a, m, r = a.mean(0), m.mean(), r.mean()

@@ -27,6 +27,8 @@ class FieldConfig:
     init_albedo: float = 0.5
     init_metallic: float = 0.5
     init_roughness: float = 0.4
+    residual_l2: float = 1e-3
+    """Weight of the L2 penalty on the spatial residual (raw units) over the global base."""
     range_prior: float = 1e-3
     """Weak pull of metallic toward 0 or 1 (m (1 − m)) and of every raw value toward 0."""
 

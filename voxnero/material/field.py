@@ -8,8 +8,12 @@ Two explicit parameterisations (``material.field.kind``):
   (``grid_sample``, ``align_corners=True``); smoothness is the mean squared difference of
   neighbouring cells (total variation, squared).
 
-Raw values pass through a sigmoid: albedo in (0, 1)³, metallic in (0, 1), roughness r in
-(0, 1) (GGX alpha = r², see ``voxnero.render.brdf``).
+Both are a **global base** (5 raw values shared by the whole surface) plus a spatial residual
+(initialised to 0, kept small by an L2 penalty). Every pixel of every batch trains the base, so a
+uniform material converges in a few hundred steps, while each vertex / cell only sees the few
+pixels around it (measured on torus_ceramic: per-vertex values alone had moved metallic only from
+0.5 to 0.34 after 1000 steps). Raw values pass through a sigmoid: albedo in (0, 1)³, metallic in
+(0, 1), roughness r in (0, 1) (GGX alpha = r², see ``voxnero.render.brdf``).
 """
 
 from __future__ import annotations
@@ -49,8 +53,8 @@ class VertexMaterial(nn.Module):
         """
         super().__init__()
         self.geom = geom
-        init = torch.tensor(_init_raw(albedo, metallic, roughness))
-        self.raw = nn.Parameter(init.repeat(geom.n_vertices, 1))
+        self.base = nn.Parameter(torch.tensor(_init_raw(albedo, metallic, roughness)))
+        self.residual = nn.Parameter(torch.zeros(geom.n_vertices, 5))
         f = geom.triangles
         e = torch.cat([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
         e = torch.unique(torch.sort(e, dim=1).values, dim=0)
@@ -66,7 +70,16 @@ class VertexMaterial(nn.Module):
         Returns:
             albedo (N, 3), metallic (N, 1), roughness (N, 1).
         """
-        return activate(self.geom.interpolate(self.raw, tri, bary))
+        return activate(self.base + self.geom.interpolate(self.residual, tri, bary))
+
+    @property
+    def raw(self) -> Tensor:
+        """(V, 5) raw values at the vertices (base + residual)."""
+        return self.base + self.residual
+
+    def residual_penalty(self) -> Tensor:
+        """Mean squared residual (keeps the spatial part small where data is weak)."""
+        return (self.residual**2).mean()
 
     def smoothness(self, sample: int = 65536, generator: torch.Generator | None = None
                    ) -> Tensor:
@@ -76,10 +89,6 @@ class VertexMaterial(nn.Module):
             e = e[torch.randint(0, e.shape[0], (sample,), generator=generator)]
         s = torch.sigmoid(self.raw)
         return ((s[e[:, 0]] - s[e[:, 1]]) ** 2).sum(-1).mean()
-
-    def vertex_values(self) -> Tensor:
-        """(V, 5) activated values at the vertices (albedo, metallic, roughness)."""
-        return torch.sigmoid(self.raw.detach())
 
 
 class GridMaterial(nn.Module):
@@ -93,8 +102,8 @@ class GridMaterial(nn.Module):
             bound: the grid covers ``[-bound, bound]³`` (unit frame).
         """
         super().__init__()
-        init = torch.tensor(_init_raw(albedo, metallic, roughness))
-        self.grid = nn.Parameter(init.view(1, 5, 1, 1, 1).repeat(1, 1, res, res, res))
+        self.base = nn.Parameter(torch.tensor(_init_raw(albedo, metallic, roughness)))
+        self.grid = nn.Parameter(torch.zeros(1, 5, res, res, res))
         self.bound = bound
 
     def raw_at(self, x: Tensor) -> Tensor:
@@ -103,7 +112,11 @@ class GridMaterial(nn.Module):
         g = (x / self.bound).view(1, -1, 1, 1, 3)
         out = F.grid_sample(self.grid, g, mode="bilinear", padding_mode="border",
                             align_corners=True)
-        return out.view(5, -1).T
+        return self.base + out.view(5, -1).T
+
+    def residual_penalty(self) -> Tensor:
+        """Mean squared residual of the grid cells."""
+        return (self.grid**2).mean()
 
     def forward(self, tri: Tensor, bary: Tensor, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Material at surface points ``x`` (N, 3); tri/bary unused. Returns as VertexMaterial."""
@@ -111,7 +124,7 @@ class GridMaterial(nn.Module):
 
     def smoothness(self, sample: int = 0, generator: torch.Generator | None = None) -> Tensor:
         """Mean squared difference of neighbouring activated cells along each axis."""
-        s = torch.sigmoid(self.grid)
+        s = torch.sigmoid(self.grid + self.base.view(1, 5, 1, 1, 1))
         return sum(((s.narrow(d, 1, s.shape[d] - 1) - s.narrow(d, 0, s.shape[d] - 1)) ** 2)
                    .sum(1).mean() for d in (2, 3, 4))
 

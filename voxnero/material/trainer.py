@@ -146,6 +146,8 @@ class MaterialTrainer:
         fc = cfg.field
         if fc.smooth:
             terms["smooth"] = fc.smooth * self.field.smoothness(generator=self.gen)
+        if fc.residual_l2:
+            terms["residual"] = fc.residual_l2 * self.field.residual_penalty()
         if fc.range_prior:
             a, m, r = self.field(c.tri[idx], c.bary[idx], c.x[idx])
             terms["range"] = fc.range_prior * (m * (1 - m)).mean()
