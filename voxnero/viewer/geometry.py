@@ -57,8 +57,9 @@ def channel_textures(asset) -> dict[str, np.ndarray] | None:
 def asset_mesh(asset):
     """Legacy Open3D mesh of the asset with vertex normals and, if textured, per-corner UVs.
 
-    Open3D/Filament sample textures with the image's first row at v = 0, the glTF convention
-    the asset's UVs are in, so the UVs are passed unchanged.
+    Open3D's ``triangle_uvs`` have v pointing up (image row = (1 − v)·S, as its UV atlas);
+    the asset's UVs are glTF's (v down), so v is flipped here (checked by eye on a baked
+    sphere: with unflipped UVs the atlas islands show up scrambled).
     """
     import open3d as o3d
 
@@ -67,6 +68,7 @@ def asset_mesh(asset):
     m = asset.legacy_mesh()
     if isinstance(asset.material, TextureMaterial):
         uv = asset.material.uvs.numpy().astype(np.float64)[asset.triangles.numpy().reshape(-1)]
+        uv[:, 1] = 1.0 - uv[:, 1]
         m.triangle_uvs = o3d.utility.Vector2dVector(uv)
     return m
 
