@@ -14,7 +14,7 @@ about the up axis), ``views``, ``seed`` (section ``relight:`` of the preset).
 Writes into ``--out``: ``<view>.png`` (sRGB, round(255·sRGB(clip(L))) like the dev data),
 ``exr/<view>.exr`` (linear), ``config.yaml`` and ``relight.json`` (timings and, when the
 camera split has photos, PSNR against them: whole image and fully covered pixels, raw and with
-a per-channel scale fitted on the object).
+a per-channel scale fitted on the object's unclipped pixels).
 """
 
 from __future__ import annotations
@@ -125,7 +125,10 @@ def run(args: argparse.Namespace) -> int:
             rec["psnr"] = psnr(q, gt)
             if full.any():
                 rec["psnr_object"] = psnr(q, gt, full)
-                s = fit_channel_scale(rgb, photos[i], full)
+                # fit where neither side is clipped (a sun's reflection at L = 50 against an
+                # 8-bit 1.0 would drive the least-squares scale toward 0)
+                fit = full & (rgb.max(-1) < 1.0) & (photos[i].max(-1) < 0.99)
+                s = fit_channel_scale(rgb, photos[i], fit if fit.any() else full)
                 rec["psnr_object_scaled"] = psnr(
                     np.asarray(linear_to_srgb(np.clip(rgb * s, 0, 1))), gt, full)
         per_view.append(rec)
