@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         from voxnero.relight.cameras import scene_cameras
 
         cams, _, photos = scene_cameras(args.cameras, "train")
-        extras += camera_drawables(cams, photos, size=0.25 * float(
+        extras += camera_drawables(cams, photos, size=0.1 * float(
             np.linalg.norm(cams.c2w[:, :3, 3].double().numpy() - center, axis=1).mean()))
         pts += list(cams.c2w[:, :3, 3].double().numpy())
     pts = np.asarray(pts)
