@@ -119,7 +119,7 @@ def _make(shape: str, out: Path, cfg: SynthConfig, progress: bool,
     t0 = time.perf_counter()
     from voxnero.io.exr import write_exr
 
-    write_mesh(out / "gt" / "mesh.ply", geometry.mesh())
+    write_mesh(out / "gt" / "mesh.ply", *geometry.mesh_arrays())
     # half float like the dev scenes, unless the map is brighter than half's range (65504)
     write_exr(out / "gt" / "envmap.exr", env_img, half=bool(env_img.max() < 6e4))
     env_desc = dict(env_desc, file="gt/envmap.exr", resolution=[env_img.shape[1],

@@ -103,23 +103,59 @@ class Sphere:
         """Radius of the origin-centred sphere that contains the shape."""
         return float(np.linalg.norm(self.center)) + self.radius
 
-    def mesh(self, subdivisions: int = 5) -> o3d.geometry.TriangleMesh:
-        """Icosphere with vertices on the sphere and radial vertex normals.
+    def mesh_arrays(self, subdivisions: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Icosphere with vertices on the sphere: (vertices (V, 3), triangles (F, 3) int32
+        counter-clockwise seen from outside, vertex normals (V, 3) radial).
 
-        Subdivision level 5 (20 480 triangles) has a maximum chord deviation of about
-        1.9e-4·radius (the largest edge is ≈ 0.039·radius; sagitta ≈ edge²/(8·radius)).
+        Subdivision level 5 (10 242 vertices, 20 480 triangles) has a maximum chord deviation
+        of about 1.9e-4·radius (the largest edge is ≈ 0.039·radius; sagitta ≈ edge²/(8·radius)).
         """
-        import open3d as o3d  # lazy: a 2 s import that only the GT mesh needs
+        unit, tris = icosphere(subdivisions)
+        return unit * self.radius + np.asarray(self.center), tris, unit.copy()
 
-        m = o3d.geometry.TriangleMesh.create_icosahedron(radius=1.0)
-        for _ in range(subdivisions):
-            m = m.subdivide_midpoint(number_of_iterations=1)
-            v = np.asarray(m.vertices)
-            m.vertices = o3d.utility.Vector3dVector(v / np.linalg.norm(v, axis=1, keepdims=True))
-        unit = np.asarray(m.vertices).copy()
-        m.vertices = o3d.utility.Vector3dVector(unit * self.radius + np.asarray(self.center))
-        m.vertex_normals = o3d.utility.Vector3dVector(unit)
-        return m
+    def mesh(self, subdivisions: int = 5) -> o3d.geometry.TriangleMesh:
+        """:meth:`mesh_arrays` as an Open3D TriangleMesh with vertex normals."""
+        return to_open3d(*self.mesh_arrays(subdivisions))
+
+
+def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit icosphere by midpoint subdivision, vertices re-projected onto the sphere each level.
+
+    Returns:
+        (vertices (10·4^k + 2, 3) float64 unit vectors, triangles (20·4^k, 3) int32, outward
+        counter-clockwise winding).
+    """
+    p = (1 + math.sqrt(5)) / 2
+    v = np.array([[-1, p, 0], [1, p, 0], [-1, -p, 0], [1, -p, 0], [0, -1, p], [0, 1, p],
+                  [0, -1, -p], [0, 1, -p], [p, 0, -1], [p, 0, 1], [-p, 0, -1], [-p, 0, 1]],
+                 dtype=np.float64)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9],
+                  [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2],
+                  [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10],
+                  [8, 6, 7], [9, 8, 1]], dtype=np.int64)
+    for _ in range(subdivisions):
+        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        uniq, inv = np.unique(np.sort(edges, axis=1), axis=0, return_inverse=True)
+        mid = v[uniq].mean(axis=1)
+        v = np.concatenate([v, mid / np.linalg.norm(mid, axis=1, keepdims=True)])
+        m = len(v) - len(uniq) + inv.reshape(3, -1).T  # midpoints of (ab, bc, ca) per face
+        a, b, c = f.T
+        ab, bc, ca = m.T
+        f = np.concatenate([np.stack([a, ab, ca], 1), np.stack([b, bc, ab], 1),
+                            np.stack([c, ca, bc], 1), np.stack([ab, bc, ca], 1)])
+    return v, f.astype(np.int32)
+
+
+def to_open3d(vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray
+              ) -> o3d.geometry.TriangleMesh:
+    """Open3D TriangleMesh from arrays (V, 3), (F, 3), vertex normals (V, 3)."""
+    import open3d as o3d  # lazy: a slow import that only callers of mesh() need
+
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(vertices, np.float64)),
+                                  o3d.utility.Vector3iVector(np.asarray(triangles, np.int32)))
+    m.vertex_normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
+    return m
 
 
 def tilt_matrix(tilt_deg: float) -> np.ndarray:
@@ -225,13 +261,17 @@ class Torus:
         return lo
 
     def mesh(self, n_major: int = 384, n_minor: int = 128) -> o3d.geometry.TriangleMesh:
-        """Parametric quad grid split in triangles, vertices on the surface, analytic normals.
+        """:meth:`mesh_arrays` as an Open3D TriangleMesh with vertex normals."""
+        return to_open3d(*self.mesh_arrays(n_major, n_minor))
+
+    def mesh_arrays(self, n_major: int = 384, n_minor: int = 128
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Parametric quad grid split in triangles, vertices on the surface, analytic normals:
+        (vertices (V, 3), triangles (F, 3) int32 outward counter-clockwise, normals (V, 3)).
 
         Chord deviation ≤ (R + r)(1 − cos(π/n_major)) + r(1 − cos(π/n_minor)), ≈ 4.6e-5 for
         the defaults and R 0.62, r 0.26.
         """
-        import open3d as o3d
-
         R, r = self.major_radius, self.minor_radius
         u = np.arange(n_major) * (2 * np.pi / n_major)
         v = np.arange(n_minor) * (2 * np.pi / n_minor)
@@ -249,10 +289,7 @@ class Torus:
         e = i * n_minor + (j + 1) % n_minor
         tris = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
                                np.stack([a, c, e], -1).reshape(-1, 3)])
-        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(pts),
-                                      o3d.utility.Vector3iVector(tris.astype(np.int32)))
-        m.vertex_normals = o3d.utility.Vector3dVector(nrm)
-        return m
+        return pts, tris.astype(np.int32), nrm
 
 
 Shape = Sphere | Torus
@@ -297,11 +334,17 @@ class Union:
         """Radius of the origin-centred sphere containing every shape."""
         return max(s.bounding_radius() for s in self.shapes)
 
-    def mesh(self) -> o3d.geometry.TriangleMesh:
-        """All shapes' meshes in one TriangleMesh (with vertex normals)."""
-        import open3d as o3d
-
-        out = o3d.geometry.TriangleMesh()
+    def mesh_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """All shapes' meshes concatenated: vertices (V, 3), triangles (F, 3), normals (V, 3)."""
+        vs, fs, ns, base = [], [], [], 0
         for s in self.shapes:
-            out += s.mesh()
-        return out
+            v, f, n = s.mesh_arrays()
+            vs.append(v)
+            fs.append(f + base)
+            ns.append(n)
+            base += len(v)
+        return np.concatenate(vs), np.concatenate(fs).astype(np.int32), np.concatenate(ns)
+
+    def mesh(self) -> o3d.geometry.TriangleMesh:
+        """All shapes' meshes in one Open3D TriangleMesh (with vertex normals)."""
+        return to_open3d(*self.mesh_arrays())
