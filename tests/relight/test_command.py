@@ -99,3 +99,36 @@ def test_relight_gt_against_scene_split_reports_psnr(tmp_path):
     rep = json.loads((tmp_path / "relight.json").read_text())
     # 1 spp is noisy but a wrong frame / convention would be far below 25 dB
     assert rep["mean_psnr"] > 25.0, rep
+
+
+def test_relight_from_a_transforms_json(sphere_asset_files, env_file, tmp_path):
+    """Cameras from a NeRF-synthetic transforms.json (OpenGL c2w, no images needed): the
+    object is seen where the pose puts it (centred view covers the middle, an off-axis view
+    shifts it to the image side)."""
+    from voxnero.cameras.cameras import opencv_to_opengl
+    from voxnero.relight.cameras import look_at
+
+    c = np.array([0.1, 0.2, 0.3])
+    eye = c + np.array([0.0, -3.0, 0.0])
+    frames = []
+    for target in (c, c + np.array([0.6, 0.0, 0.0])):  # second view looks right of the object
+        m = opencv_to_opengl(look_at(eye, target, np.array([0, 0, 1.0])))
+        frames.append({"file_path": f"./none/v{len(frames)}",
+                       "transform_matrix": np.asarray(m).tolist()})
+    flat = tmp_path / "flat.exr"  # constant env: every background pixel is exactly 0.5
+    write_exr(flat, np.full((8, 16, 3), 0.5, np.float32), half=False)
+    tj = tmp_path / "transforms.json"
+    tj.write_text(json.dumps({"camera_angle_x": 0.7, "w": 32, "h": 32, "frames": frames}))
+    out = tmp_path / "o"
+    assert main(["relight", str(sphere_asset_files[0]), "--env", str(flat), "--cameras",
+                 str(tj), "--out", str(out), "--no-progress", "spp=1"]) == 0
+    a = read_exr(out / "exr" / "v0.exr")
+    b = read_exr(out / "exr" / "v1.exr")
+    assert a.shape == (32, 32, 3)
+    rep = json.loads((out / "relight.json").read_text())
+    # sphere r 0.5 at distance 3, 40 deg field of view: disc of ~ pi (9.6 / 20)^2 / 4 = 0.18
+    assert 0.12 < rep["views"][0]["coverage"] < 0.25
+    objs = [np.abs(x - 0.5).sum(-1) > 1e-4 for x in (a, b)]
+    ca, cb = (np.nonzero(o.any(0))[0].mean() for o in objs)
+    assert abs(ca - 15.5) < 1.0  # centred
+    assert cb < 12  # the second camera turned right: the object moves to the left
