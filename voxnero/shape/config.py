@@ -33,8 +33,9 @@ class GridConfig:
     fd_step: float = 1.0
     """Central-difference half-step in voxels (normals: fd)."""
     grad_smooth: float = 1.0
-    """Gaussian blur (sigma, voxels) of the SDF grid's gradient before each optimiser step
-    (0 = off): spreads each ray's update over neighbours (against voxel-scale bumps)."""
+    """Gaussian blur (sigma, in voxels of the *first* grid, so the same length in space at every
+    resolution) of the SDF grid's gradient before each optimiser step (0 = off): spreads each
+    ray's update over neighbours (against voxel-scale bumps)."""
     feat_res: int = 8
     feat_dim: int = 8
 
@@ -95,11 +96,11 @@ class LossConfig:
     charbonnier_eps: float = 1e-3
     color_space: Literal["srgb", "linear"] = "srgb"
     eikonal: float = 0.1
-    laplacian: float = 1e-3
+    laplacian: float = 1e-4
     """Weight of the squared Laplacian of the SDF grid (mean over voxels, in voxel units)."""
-    normal_smooth: float = 0.05
+    normal_smooth: float = 0.02
     """Weight of the normal smoothness between surface points and points jittered by
-    ``normal_smooth_radius`` voxels (0 = off)."""
+    ``normal_smooth_radius`` voxels of the first grid (0 = off)."""
     normal_smooth_radius: float = 1.0
     occlusion: float = 1.0
     occlusion_start: float = 0.2

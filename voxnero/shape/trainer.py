@@ -121,6 +121,8 @@ class ShapeTrainer:
             .to(self.device)
         self.sw = resolve_switches(cfg, scene)
         self.model = ShapeModel(cfg, self.sw).to(self.device)
+        self.coarse_voxel = self.model.sdf.voxel
+        """Voxel of the first grid: smoothing lengths are fixed in space across resolutions."""
         self.opt = torch.optim.Adam(self.model.param_groups(cfg), betas=(0.9, 0.99), eps=1e-15)
         self.step = 0
         self.train_time = 0.0
@@ -226,7 +228,7 @@ class ShapeTrainer:
             keep = out["acc_hit"] > 0.5
             x = out["x"][keep]
             jit = torch.randn(x.shape, generator=self.gen, device=x.device)
-            xj = x + jit * (lc.normal_smooth_radius * m.sdf.voxel)
+            xj = x + jit * (lc.normal_smooth_radius * self.coarse_voxel)
             _, g2 = m.sdf.sdf_grad(torch.cat([x, xj]), cfg.grid.normals, cfg.grid.fd_step)
             g2 = torch.nn.functional.normalize(g2, dim=-1)
             l_ns = losses.normal_smoothness(g2[:x.shape[0]], g2[x.shape[0]:])
@@ -244,7 +246,8 @@ class ShapeTrainer:
         loss.backward()
         g = m.sdf.grid
         if cfg.grid.grad_smooth > 0 and g.grad is not None:
-            g.grad[0] = gaussian_blur3d(g.grad[0], cfg.grid.grad_smooth)
+            g.grad[0] = gaussian_blur3d(g.grad[0],
+                                        cfg.grid.grad_smooth * self.coarse_voxel / m.sdf.voxel)
         self.opt.step()
         m.env.release()
         return {"loss": float(loss.detach()), "color": float(l_col.detach()),
