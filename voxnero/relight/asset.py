@@ -263,6 +263,9 @@ def load_glb(path: str | Path) -> Asset:
         if tex_ref is None:
             return None
         img = doc["images"][doc["textures"][tex_ref["index"]]["source"]]
+        if "bufferView" not in img:
+            raise DataError("texture image is an external file (uri), not embedded", path=path,
+                            fix="embed the textures (a .glb as 'voxnero material' writes it)")
         view = doc["bufferViews"][img["bufferView"]]
         off = view.get("byteOffset", 0)
         return _decode_png(binary[off:off + view["byteLength"]])
