@@ -17,3 +17,13 @@ for _d in [_TESTS, *sorted(p for p in _TESTS.iterdir()
                            if p.is_dir() and not p.name.startswith((".", "_")))]:
     if str(_d) not in sys.path:
         sys.path.append(str(_d))
+
+# One torch thread: on a 2-core machine most test tensors are small, and with two OpenMP
+# threads element-wise kernels ran 15-40x slower whenever anything else used the CPU
+# (docs/BENCHMARKS.md, "Shading core"). Trainers choose their own count (config `threads`).
+try:
+    import torch
+
+    torch.set_num_threads(1)
+except ImportError:  # pragma: no cover - torch is a hard dependency
+    pass
