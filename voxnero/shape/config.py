@@ -102,6 +102,9 @@ class LossConfig:
     """Weight of the normal smoothness between surface points and points jittered by
     ``normal_smooth_radius`` voxels of the first grid (0 = off)."""
     normal_smooth_radius: float = 1.0
+    normal_smooth_start: float = 0.0
+    """Fraction of ``iters`` before which the normal smoothness is off (let the topology form:
+    it resisted carving the torus' hole)."""
     occlusion: float = 1.0
     occlusion_start: float = 0.2
     """Fraction of ``iters`` after which occlusion targets are computed and used."""

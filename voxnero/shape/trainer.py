@@ -224,7 +224,8 @@ class ShapeTrainer:
         l_lap = losses.laplacian(m.sdf.grid[0], m.sdf.voxel) if lc.laplacian > 0 else 0.0
         loss = l_col + lc.eikonal * l_eik + lc.laplacian * l_lap
         l_ns = torch.zeros(())
-        if lc.normal_smooth > 0 and "x" in out:
+        if lc.normal_smooth > 0 and "x" in out and \
+                self.step >= int(lc.normal_smooth_start * cfg.iters):
             keep = out["acc_hit"] > 0.5
             x = out["x"][keep]
             jit = torch.randn(x.shape, generator=self.gen, device=x.device)
