@@ -63,6 +63,27 @@ def test_nothing_to_run_needs_no_ray(tmp_path):
     assert exit_code(rows[:1]) == 0
 
 
+def test_bad_per_scene_overrides_are_error_rows(tmp_path):
+    """A manifest's per-scene override that names no section, an unknown key or a bad batch
+    value fails that scene only, before Ray would start."""
+    import ray
+
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    (scene / "transforms_train.json").write_text(json.dumps({"frames": []}))
+    m = tmp_path / "m.yaml"
+    m.write_text(f"- {{path: {scene}, name: nosec, overrides: [iters=5]}}\n"
+                 f"- {{path: {scene}, name: unknown, overrides: [shape.no_such=1]}}\n"
+                 f"- {{path: {scene}, name: badbatch, overrides: [batch.max_retries=-1]}}\n")
+    rows = run_batch(m, "standard", tmp_path / "out", progress=False, log=lambda s: None)
+    assert not ray.is_initialized()
+    assert [r["status"] for r in rows] == ["error"] * 3
+    assert "does not name its section" in rows[0]["error"]
+    assert "shape.no_such" in rows[1]["error"]
+    assert "batch.max_retries" in rows[2]["error"]
+    assert all(r["error"].startswith("per-scene overrides: ") for r in rows)
+
+
 @pytest.mark.slow
 def test_three_scenes_and_a_broken_one(scene_copies, tiny_stages, tmp_path):
     """Local Ray, 2 CPUs: three results, one clear error, exit code 1; a re-run skips the

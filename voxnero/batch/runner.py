@@ -118,7 +118,8 @@ def run_batch(manifest: str | Path, preset: str, out: str | Path, overrides: lis
             (:mod:`voxnero.batch.manifest`).
         preset: preset name or YAML path (its ``batch:`` section sets the task resources).
         out: batch output folder; scene ``name`` writes into ``out/name/``.
-        overrides: ``shape.``/``material.``/``eval.``/``batch.`` ``key=value`` items.
+        overrides: ``shape.``/``material.``/``eval.``/``batch.`` ``key=value`` items (a
+            manifest's per-scene overrides come after them, ``batch.`` ones included).
         address: Ray cluster address (``HOST:6379`` or ``auto``); None starts a local Ray.
         device: passed to the stages (``auto``: CUDA when the task got a GPU from Ray).
         progress: show a progress bar over scenes.
@@ -149,10 +150,12 @@ def run_batch(manifest: str | Path, preset: str, out: str | Path, overrides: lis
             continue
         err = probe_scene(e.path)
         if err is None:
-            g = split_overrides(e.overrides) if e.overrides else {"stages": [], "eval": []}
             try:
+                g = split_overrides(e.overrides)
                 check_stage_overrides(preset, groups["stages"] + g["stages"],
                                       groups["eval"] + g["eval"])
+                cfg_e = resolve(BatchConfig, "batch", preset, groups["batch"] + g["batch"]) \
+                    if g["batch"] else cfg
             except ConfigError as ce:
                 err = f"per-scene overrides: {' '.join(str(ce).split())}"
         if err is not None:
@@ -160,12 +163,12 @@ def run_batch(manifest: str | Path, preset: str, out: str | Path, overrides: lis
             write_result(sdir, row)
             rows[e.name] = row
             continue
-        jobs.append((e, SceneJob(name=e.name, scene=str(e.path), out=str(sdir),
-                                 preset=preset_arg,
-                                 overrides=groups["stages"] + g["stages"],
-                                 eval_overrides=groups["eval"] + g["eval"],
-                                 command=cfg.command, eval=cfg.eval, device=device,
-                                 lock_timeout_s=cfg.lock_timeout_s)))
+        jobs.append((e, cfg_e, SceneJob(name=e.name, scene=str(e.path), out=str(sdir),
+                                        preset=preset_arg,
+                                        overrides=groups["stages"] + g["stages"],
+                                        eval_overrides=groups["eval"] + g["eval"],
+                                        command=cfg_e.command, eval=cfg_e.eval, device=device,
+                                        lock_timeout_s=cfg_e.lock_timeout_s)))
     n_skip = sum(r["status"] == "skipped" for r in rows.values())
     log(f"[batch] {len(entries)} scenes: {n_skip} finished earlier (skipped), "
         f"{len(rows) - n_skip} not scenes, {len(jobs)} to run")
@@ -180,7 +183,8 @@ def run_batch(manifest: str | Path, preset: str, out: str | Path, overrides: lis
     return ordered
 
 
-def _run_jobs(jobs: list[tuple[SceneEntry, SceneJob]], cfg: BatchConfig, address: str | None,
+def _run_jobs(jobs: list[tuple[SceneEntry, BatchConfig, SceneJob]], cfg: BatchConfig,
+              address: str | None,
               rows: dict[str, dict[str, Any]], total: int, progress: bool, log) -> None:
     import ray
     from tqdm import tqdm
@@ -192,8 +196,10 @@ def _run_jobs(jobs: list[tuple[SceneEntry, SceneJob]], cfg: BatchConfig, address
         f"{ray.cluster_resources().get('GPU', 0):.0f} GPUs; per scene {cfg.num_cpus:g} CPU, "
         f"{cfg.num_gpus:g} GPU, up to {cfg.max_retries} retries")
     try:
-        task = remote_task(cfg.num_cpus, cfg.num_gpus, cfg.max_retries, cfg.memory_mb)
-        refs = {task.options(name=f"scene:{job.name}").remote(job): (e, job) for e, job in jobs}
+        refs = {}
+        for e, c, job in jobs:  # c: the scene's batch config (per-scene batch.* overrides)
+            task = remote_task(c.num_cpus, c.num_gpus, c.max_retries, c.memory_mb)
+            refs[task.options(name=f"scene:{job.name}").remote(job)] = (e, job)
         pending = list(refs)
         bar = tqdm(total=total, initial=total - len(jobs), unit="scene", desc="batch",
                    disable=not progress, dynamic_ncols=True)
