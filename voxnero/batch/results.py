@@ -14,7 +14,8 @@ from typing import Any
 COLUMNS = ["scene", "status", "error", "time_s", "peak_mem_mb", "attempts", "chamfer",
            "normal_deg", "psnr", "mesh", "model", "metrics", "out", "path"]
 """Columns of ``results.csv`` (``time_s``: wall seconds of the last attempt; ``peak_mem_mb``:
-max RSS of the scene's stage process in MiB; ``chamfer``: NeRO-protocol Chamfer distance in the
+max RSS of the scene's stage process in MiB; ``attempts``: task attempts over all runs of the
+batch (Ray retries included); ``chamfer``: NeRO-protocol Chamfer distance in the
 normalised frame; ``normal_deg``: mean normal error in degrees; ``psnr``: novel-view PSNR in dB
 of stage 2; empty where the scene has no ground truth or the stage did not run)."""
 
