@@ -32,20 +32,22 @@ def test_white_furnace_matches_split_sum_directional_albedo(albedo, metallic, ro
     """Constant unit env, convex object: L_o = (1 - m) a + F0 A(n.v, r) + B(n.v, r).
 
     A and B come from the shading core's independently integrated split-sum table (Hammersley,
-    4096 samples per node). Tolerance: 1.5 % mean relative error (Monte Carlo, 96 spp).
+    4096 samples per node). Tolerances (Monte Carlo, 192 spp): mean |relative error| 1.5 %,
+    signed mean (bias) 0.5 %.
     """
     geom = sphere_geometry(0.5, 40)
     tri, bary, x, n, v = _points(geom)
     field = VertexMaterial(geom, albedo, metallic, rough)
     env = torch.ones(16, 32, 3)
     g = torch.Generator().manual_seed(1)
-    L = shade(geom, field, env, tri, bary, x, n, v, Strategies(32, 32, 32), env=env_sampler(env),
+    L = shade(geom, field, env, tri, bary, x, n, v, Strategies(64, 64, 64), env=env_sampler(env),
               generator=g)
     a, m, r = field(tri, bary, x)
     A, B = split_sum_lookup((n * v).sum(-1), r[:, 0])
     f0 = 0.04 * (1 - m) + m * a
     ref = f0 * A[:, None] + B[:, None] + (1 - m) * a
     assert ((L - ref).abs() / ref).mean() < 0.015
+    assert ((L - ref) / ref).mean().abs() < 0.005
 
 
 def test_strategies_agree_on_a_structured_env_map():
