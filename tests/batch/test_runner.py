@@ -120,6 +120,7 @@ def test_three_scenes_and_a_broken_one(scene_copies, tiny_stages, tmp_path):
     again = _rows(out)
     assert [again[n]["status"] for n in ("s1", "s2", "s3")] == ["skipped"] * 3
     assert again["s1"]["chamfer"] == rows["s1"]["chamfer"] and again["broken"]["status"] == "error"
+    print(f"first run {t_first:.1f} s, re-run {t_again:.1f} s")
     assert t_again < 5, f"re-run took {t_again:.1f} s (first run {t_first:.1f} s)"
 
 
