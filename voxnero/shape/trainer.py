@@ -247,8 +247,7 @@ class ShapeTrainer:
         loss.backward()
         g = m.sdf.grid
         if cfg.grid.grad_smooth > 0 and g.grad is not None:
-            g.grad[0] = gaussian_blur3d(g.grad[0],
-                                        cfg.grid.grad_smooth * self.coarse_voxel / m.sdf.voxel)
+            g.grad[0] = gaussian_blur3d(g.grad[0], cfg.grid.grad_smooth)
         self.opt.step()
         m.env.release()
         return {"loss": float(loss.detach()), "color": float(l_col.detach()),
