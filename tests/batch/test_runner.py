@@ -199,3 +199,27 @@ def test_killed_worker_resumes_from_checkpoint(local_ray, scene_copies, tiny_sta
              if '"loss"' in ln]
     assert steps == sorted(set(steps)), "stage 1 restarted from step 0"
     assert max(steps) == 400
+
+
+@pytest.mark.slow
+def test_address_joins_a_running_cluster(local_ray, scene_copies, tiny_stages, tmp_path):
+    """``--address`` from another process joins the cluster (as with ``ray start --head``): the
+    scene's task shows up in this cluster's state API."""
+    import subprocess
+    import sys
+
+    from ray.util.state import list_tasks
+
+    scenes = scene_copies(["j"])
+    out = tmp_path / "out"
+    address = local_ray.get_runtime_context().gcs_address
+    stages = [s for s in tiny_stages if s.startswith("shape.")]
+    proc = subprocess.run([sys.executable, "-m", "voxnero", "batch", str(scenes), "--out",
+                           str(out), "--address", address, "--no-progress", *stages,
+                           "batch.command=shape", "batch.eval=false"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "Ray joined" in proc.stdout and "2 CPUs" in proc.stdout
+    assert _rows(out)["j"]["status"] == "ok" and Path(_rows(out)["j"]["mesh"]).is_file()
+    done = list_tasks(filters=[("name", "=", "scene:j")])
+    assert [t.state for t in done] == ["FINISHED"]

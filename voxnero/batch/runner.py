@@ -191,7 +191,8 @@ def _run_jobs(jobs: list[tuple[SceneEntry, BatchConfig, SceneJob]], cfg: BatchCo
 
     t0 = time.perf_counter()
     started = init_ray(cfg, address)
-    log(f"[batch] Ray {'started' if started else 'joined'} in {time.perf_counter() - t0:.1f} s: "
+    how = "joined" if address else "started" if started else "in use"
+    log(f"[batch] Ray {how} in {time.perf_counter() - t0:.1f} s: "
         f"{ray.cluster_resources().get('CPU', 0):.0f} CPUs, "
         f"{ray.cluster_resources().get('GPU', 0):.0f} GPUs; per scene {cfg.num_cpus:g} CPU, "
         f"{cfg.num_gpus:g} GPU, up to {cfg.max_retries} retries")
