@@ -58,7 +58,9 @@ def bake_textures(mesh: o3d.geometry.TriangleMesh, albedo: np.ndarray, metallic:
         mesh.compute_vertex_normals()
     t = o3d.t.geometry.TriangleMesh.from_legacy(mesh)
     n_tri = len(mesh.triangles)
-    t.compute_uvatlas(size=size, parallel_partitions=max(1, n_tri // 100000))
+    # partitions: 85k triangles took 33 s in one piece and 16 s in 4 (2-core CPU), with
+    # more charts but no worse stretch
+    t.compute_uvatlas(size=size, parallel_partitions=min(16, max(1, n_tri // 25000)))
     V = len(mesh.vertices)
     mr = np.zeros((V, 3), np.float32)
     mr[:, 1] = np.asarray(roughness, np.float32).reshape(V)
