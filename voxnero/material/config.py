@@ -86,8 +86,9 @@ class MaterialConfig:
     max_bg_pixels: int = -1
     """At most this many background pixels are cached (-1 = all)."""
     seed: int = 0
-    threads: int = 0
-    """torch CPU threads (0 = torch's default); 1 is fastest on a busy shared CPU."""
+    threads: int = 1
+    """torch CPU threads (0 = torch's default). 1 by default: the batches are small and on the
+    shared 2-core CPU torch's default threading made a step ~6x slower."""
     field: FieldConfig = _field(default_factory=FieldConfig)
     light: LightConfig = _field(default_factory=LightConfig)
     render: RenderConfig = _field(default_factory=RenderConfig)
