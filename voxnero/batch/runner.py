@@ -141,7 +141,7 @@ def run_batch(manifest: str | Path, preset: str, out: str | Path, overrides: lis
     preset_arg = str(Path(preset).resolve()) if Path(preset).suffix else preset
 
     rows: dict[str, dict[str, Any]] = {}
-    jobs: list[tuple[SceneEntry, SceneJob]] = []
+    jobs: list[tuple[SceneEntry, BatchConfig, SceneJob]] = []
     for e in entries:
         sdir = out / e.name
         prev = read_result(sdir)
@@ -171,7 +171,7 @@ def run_batch(manifest: str | Path, preset: str, out: str | Path, overrides: lis
                                         lock_timeout_s=cfg_e.lock_timeout_s)))
     n_skip = sum(r["status"] == "skipped" for r in rows.values())
     log(f"[batch] {len(entries)} scenes: {n_skip} finished earlier (skipped), "
-        f"{len(rows) - n_skip} not scenes, {len(jobs)} to run")
+        f"{len(rows) - n_skip} rejected (not a scene or bad overrides), {len(jobs)} to run")
 
     if jobs:
         _run_jobs(jobs, cfg, address, rows, len(entries), progress, log)
