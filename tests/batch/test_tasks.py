@@ -105,3 +105,47 @@ def test_unreadable_scene_gives_an_error_row(tmp_path):
     assert read_result(job.out)["status"] == "error" and not is_finished(job.out)
     log = (tmp_path / "out" / "s" / "batch.log").read_text()
     assert "=== attempt 1" in log and "FAILED" in log
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for t in os.listdir(f"/proc/{pid}/task"):
+        try:
+            with open(f"/proc/{pid}/task/{t}/children") as fh:
+                out += [int(c) for c in fh.read().split()]
+        except OSError:
+            pass
+    return out
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="needs Linux /proc")
+def test_killed_stage_process_raises_for_a_retry(tiny_scene, tmp_path):
+    """SIGKILL of the stage process (as the OOM killer would) raises StageKilled, the exception
+    Ray retries, and releases the scene's lock for the retry."""
+    import signal
+    import threading
+    import time
+
+    job = _job(tmp_path, tiny_scene, command="shape", overrides=["shape.iters=100000"])
+    killed = []
+
+    def kill_child() -> None:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            kids = [c for c in _children(os.getpid()) if "voxnero.batch.child" in
+                    open(f"/proc/{c}/cmdline").read().replace("\0", " ")]
+            if kids:
+                time.sleep(0.5)
+                os.kill(kids[0], signal.SIGKILL)
+                killed.append(kids[0])
+                return
+            time.sleep(0.05)
+
+    th = threading.Thread(target=kill_child, daemon=True)
+    th.start()
+    with pytest.raises(StageKilled, match="signal 9"):
+        run_scene(job)
+    th.join(5)
+    assert killed and read_result(job.out) is None  # no row: Ray retries or reports it
+    with _Lock(tmp_path / "out" / "s" / LOCK, 0.1):  # the retry can take the lock at once
+        pass
