@@ -119,7 +119,10 @@ def run(args: argparse.Namespace) -> int:
         raise DataError("no training pixel sees the mesh", path=mesh_path,
                         fix="the mesh must be in the scene's input frame (as stage 1 writes it)")
 
-    trainer = MaterialTrainer(cfg, geom, cache)
+    from voxnero.device import default_device
+
+    device = default_device(args.device)
+    trainer = MaterialTrainer(cfg, geom, cache, device=device)
     t1 = time.perf_counter()
     summary = trainer.fit(out / "checkpoint.pt", progress=not args.no_progress)
     times["train_s"] = time.perf_counter() - t1
@@ -127,8 +130,8 @@ def run(args: argparse.Namespace) -> int:
 
     # ---- exports (input frame)
     t2 = time.perf_counter()
-    env = trainer.env.image().detach()
-    a, m, r = vertex_materials(trainer.field, geom)
+    env = trainer.env.image().detach().cpu()
+    a, m, r = (t.cpu() for t in vertex_materials(trainer.field, trainer.geom))
     mesh_in = load_mesh(mesh_path)  # input frame, same vertex order
     tm = bake_textures(mesh_in, a.numpy(), m.numpy(), r.numpy(), cfg.texture_size)
     up = [float(x) for x in scene.up]
@@ -155,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
         t3 = time.perf_counter()
         s = cfg.render.eval_scale
         spp = Strategies(cfg.render.spp_cos * s, cfg.render.spp_ggx * s, cfg.render.spp_env * s)
-        metrics.update(evaluate_scene(scene_path, geom, trainer.field, env, spp,
+        metrics.update(evaluate_scene(scene_path, trainer.geom, trainer.field, env, spp,
                                       trainer.use_indirect, trainer.visibility,
                                       cfg.eval_views, out / "eval"))
         times["eval_s"] = time.perf_counter() - t3

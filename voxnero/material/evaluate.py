@@ -50,13 +50,15 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
 
     o, d = image_rays(cameras, index)
     H, W = d.shape[:2]
-    o, d = o.reshape(-1, 3).cpu(), d.reshape(-1, 3).cpu()
+    dev = geom.device
+    o, d = o.reshape(-1, 3).to(dev), d.reshape(-1, 3).to(dev)
+    env_image = env_image.to(dev)
     _, tri, bary = geom.cast(o, d)
     hit = tri >= 0
     rgb = envmap_lookup(env_image, d)
-    alb = torch.zeros(H * W, 3)
-    met = torch.zeros(H * W)
-    rough = torch.zeros(H * W)
+    alb = torch.zeros(H * W, 3, device=dev)
+    met = torch.zeros(H * W, device=dev)
+    rough = torch.zeros(H * W, device=dev)
     ind = IndirectLight(env_image) if indirect else None
     sampler = env_sampler(env_image) if spp.env else None
     idx = hit.nonzero()[:, 0]
@@ -69,8 +71,9 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
                            visibility, generator)
             a, m, r = field(t, b, x)
             alb[j], met[j], rough[j] = a, m[:, 0], r[:, 0]
-    return {"rgb": rgb.view(H, W, 3), "hit": hit.view(H, W), "albedo": alb.view(H, W, 3),
-            "metallic": met.view(H, W), "roughness": rough.view(H, W)}
+    out = {"rgb": rgb.view(H, W, 3), "hit": hit.view(H, W), "albedo": alb.view(H, W, 3),
+           "metallic": met.view(H, W), "roughness": rough.view(H, W)}
+    return {k: v.cpu() for k, v in out.items()}
 
 
 def _mean(xs: list[float]) -> float:

@@ -86,7 +86,7 @@ class VertexMaterial(nn.Module):
         """Mean over (a random subset of) edges of the squared difference of activated values."""
         e = self.edges
         if sample and e.shape[0] > sample:
-            e = e[torch.randint(0, e.shape[0], (sample,), generator=generator)]
+            e = e[torch.randint(0, e.shape[0], (sample,), generator=generator).to(e.device)]
         s = torch.sigmoid(self.raw)
         return ((s[e[:, 0]] - s[e[:, 1]]) ** 2).sum(-1).mean()
 

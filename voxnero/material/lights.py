@@ -85,7 +85,7 @@ class EnvLight(nn.Module):
     def upsampled(self, height: int) -> EnvLight:
         """A new EnvLight at ``height``: the log map looked up (bilinear, same convention) at the
         new pixel-centre directions."""
-        d = pixel_dirs(height, 2 * height)
+        d = pixel_dirs(height, 2 * height, device=self.log_rad.device)
         return EnvLight(torch.exp(envmap_lookup(self.log_rad.detach(), d)))
 
     def smoothness(self) -> Tensor:

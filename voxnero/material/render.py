@@ -69,7 +69,8 @@ def rotated_pattern(n_pix: int, n: int, generator: torch.Generator | None,
     """Hammersley pattern of n points, randomly shifted (mod 1) per pixel: (n_pix, n, 2)."""
     base = hammersley(n, dtype=torch.float32).to(device) if n > 1 else \
         torch.full((1, 2), 0.5, device=device)
-    shift = torch.rand((n_pix, 1, 2), generator=generator, device=device)
+    # drawn with the (CPU) generator, then moved: the same stream on every device
+    shift = torch.rand((n_pix, 1, 2), generator=generator).to(device)
     return torch.remainder(base[None] + shift, 1.0).clamp(0.0, 1.0 - 1e-7)
 
 

@@ -65,6 +65,15 @@ class Geometry:
     def n_vertices(self) -> int:
         return int(self.vertices.shape[0])
 
+    @property
+    def device(self) -> torch.device:
+        return self.vertices.device
+
+    def to(self, device: torch.device | str) -> Geometry:
+        """A copy whose tensors live on ``device`` (casts still run on the CPU in Open3D)."""
+        return Geometry(self.vertices.to(device), self.triangles.to(device),
+                        self.vertex_normals.to(device), self.face_normals.to(device), self.scene)
+
     def cast(self, origins: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """First hit of each ray.
 
@@ -74,7 +83,8 @@ class Geometry:
 
         Returns:
             t (N,) hit distance (inf on a miss), tri (N,) long triangle index (−1 on a miss),
-            bary (N, 3) barycentric weights of the triangle's three vertices.
+            bary (N, 3) barycentric weights of the triangle's three vertices; on the
+            geometry's device.
         """
         rays = torch.cat([origins, dirs], -1).detach().to("cpu", torch.float32).numpy()
         ans = self.scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)))
@@ -85,7 +95,8 @@ class Geometry:
         tri = torch.where(hit, tri, torch.full_like(tri, -1))
         bary = torch.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], -1)
         bary = torch.where(hit[:, None], bary, torch.zeros_like(bary))
-        return t, tri, bary
+        dev = self.device
+        return t.to(dev), tri.to(dev), bary.to(dev)
 
     def occluded(self, origins: Tensor, dirs: Tensor) -> Tensor:
         """Whether each ray hits the mesh at all (any hit, faster than :meth:`cast`).
@@ -98,7 +109,7 @@ class Geometry:
         """
         rays = torch.cat([origins, dirs], -1).detach().to("cpu", torch.float32).numpy()
         occ = self.scene.test_occlusions(o3d.core.Tensor(np.ascontiguousarray(rays)))
-        return torch.from_numpy(occ.numpy().astype(bool))
+        return torch.from_numpy(occ.numpy().astype(bool)).to(self.device)
 
     def interpolate(self, values: Tensor, tri: Tensor, bary: Tensor) -> Tensor:
         """Barycentric interpolation of per-vertex values at hits.

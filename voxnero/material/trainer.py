@@ -45,8 +45,8 @@ def needs_indirect(geom: Geometry, cache: SurfaceCache, n_points: int = 4096,
     N = cache.x.shape[0]
     if N == 0:
         return 0.0
-    idx = torch.randint(0, N, (min(n_points, N),), generator=generator)
-    u = torch.rand((idx.shape[0], 2), generator=generator)
+    idx = torch.randint(0, N, (min(n_points, N),), generator=generator).to(cache.x.device)
+    u = torch.rand((idx.shape[0], 2), generator=generator).to(cache.x.device)
     l, _ = sample_cosine(u, cache.n[idx])
     o = geom.spawn(cache.tri[idx], cache.x[idx], l)
     return float(geom.occluded(o, l).float().mean())
@@ -67,17 +67,21 @@ class MaterialTrainer:
             env_init: (H, W, 3) linear map to start from (default: background pixels averaged
                 into a map of height ``light.env_height[0]``).
         """
-        self.cfg, self.geom, self.cache, self.log = cfg, geom, cache, log
         self.device = torch.device(device)
+        geom = geom.to(self.device)
+        cache = SurfaceCache(**{k: v.to(self.device) if isinstance(v, torch.Tensor) else v
+                                for k, v in vars(cache).items()})
+        self.cfg, self.geom, self.cache, self.log = cfg, geom, cache, log
         self.gen = torch.Generator().manual_seed(cfg.seed)
         fc = cfg.field
         self.field = make_field(fc.kind, geom, fc.grid_res, fc.init_albedo, fc.init_metallic,
-                                fc.init_roughness)
+                                fc.init_roughness).to(self.device)
         self.heights = list(cfg.light.env_height)
         self.level = 0
         if env_init is None:
-            env_init = init_from_background(cache.bg_dirs, cache.bg_rgb, self.heights[0])
-        self.env = EnvLight(env_init)
+            env_init = init_from_background(cache.bg_dirs.cpu(), cache.bg_rgb.cpu(),
+                                            self.heights[0])
+        self.env = EnvLight(env_init.to(self.device))
         self.spp = Strategies(cfg.render.spp_cos, cfg.render.spp_ggx, cfg.render.spp_env)
         frac = needs_indirect(geom, cache, generator=self.gen) if cfg.render.visibility else 0.0
         mode = cfg.light.indirect
@@ -115,7 +119,8 @@ class MaterialTrainer:
     def loss_terms(self) -> dict[str, torch.Tensor]:
         """Losses of one random batch (object pixels, background pixels, priors)."""
         cfg, c = self.cfg, self.cache
-        idx = torch.randint(0, c.x.shape[0], (min(cfg.batch, c.x.shape[0]),), generator=self.gen)
+        idx = torch.randint(0, c.x.shape[0], (min(cfg.batch, c.x.shape[0]),),
+                            generator=self.gen).to(self.device)
         img = self.env.image()
         indirect = IndirectLight(img) if self.use_indirect else None
         sampler = env_sampler(img) if self.spp.env else None
@@ -140,7 +145,8 @@ class MaterialTrainer:
         terms = {"object": obj}
         self._mse = float(mse)
         if cfg.bg_batch and c.bg_dirs.shape[0]:
-            j = torch.randint(0, c.bg_dirs.shape[0], (cfg.bg_batch,), generator=self.gen)
+            j = torch.randint(0, c.bg_dirs.shape[0], (cfg.bg_batch,),
+                              generator=self.gen).to(self.device)
             bg = self.env.lookup(c.bg_dirs[j])
             terms["background"] = ((srgb_clipped(bg) - linear_to_srgb(c.bg_rgb[j])) ** 2).mean()
         fc = cfg.field
@@ -226,11 +232,11 @@ class MaterialTrainer:
 
     def load(self, path: Path) -> None:
         """Restore a checkpoint written by :meth:`save`."""
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        state = torch.load(path, map_location=self.device, weights_only=True)
         self.step, self.level = int(state["step"]), int(state["level"])
         self.field.load_state_dict(state["field"])
-        self.env = EnvLight(torch.exp(state["env"]))
+        self.env = EnvLight(torch.exp(state["env"]).to(self.device))
         self._make_optimisers()
         self.opt_mat.load_state_dict(state["opt_mat"])
         self.opt_env.load_state_dict(state["opt_env"])
-        self.gen.set_state(state["gen"])
+        self.gen.set_state(state["gen"].cpu())
