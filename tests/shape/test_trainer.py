@@ -96,3 +96,26 @@ def test_interrupt_and_resume(scene, tmp_path):
     assert tr3.step == 40 and (tmp_path / "mesh.ply").is_file()
     steps = [line for line in (tmp_path / "log.jsonl").read_text().splitlines()]
     assert len(steps) > 0
+
+
+def test_sigterm_saves_checkpoint(scene, tmp_path):
+    import os
+    import signal
+
+    cfg = _cfg(30)
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
+    orig = tr.train_step
+    calls = {"n": 0}
+
+    def killed():
+        calls["n"] += 1
+        if calls["n"] == 5:
+            os.kill(os.getpid(), signal.SIGTERM)  # like `kill PID`: finish the step, save, stop
+        return orig()
+
+    tr.train_step = killed
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt):
+        tr.run()
+    assert torch.load(tmp_path / CKPT, weights_only=False)["step"] == 5
+    assert signal.getsignal(signal.SIGTERM) == before  # the trainer's handler is removed
