@@ -23,12 +23,18 @@ RADIUS = 0.8
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    """The tiny gold-sphere scene of ``voxnero synth sphere --preset tiny`` (64², 24 + 8 views,
-    mirror-like gold under a procedural env map), path-traced by voxnero.synth."""
+    """A tiny sphere scene from ``voxnero synth sphere --preset tiny`` (64², 24 train views,
+    path-traced by voxnero.synth) with a rough orange dielectric under a constant environment:
+    the geometry comes from silhouettes and shading. (The default mirror-gold sphere under the
+    procedural env does not carve at 64² within the test's budget: see docs/STAGE1.md.)"""
     from voxnero.data.detect import load_scene
+    from voxnero.synth.config import MaterialConfig, SynthConfig
     from voxnero.synth.make import make_scene
 
-    root = make_scene("sphere", tmp_path_factory.mktemp("tiny_sphere"), progress=False)
+    cfg = SynthConfig()
+    cfg.env.source = "constant"
+    cfg.sphere.material = MaterialConfig([0.7, 0.3, 0.2], 0.0, 0.5)
+    root = make_scene("sphere", tmp_path_factory.mktemp("tiny_sphere"), cfg, progress=False)
     return load_scene(root, splits=("train",))
 
 
@@ -36,8 +42,7 @@ def _cfg(iters: int) -> ShapeConfig:
     return from_dict(ShapeConfig, {
         "iters": iters, "eval_every_s": 0, "preview_every": 0, "mesh_res": 96,
         "grid": {"res": [32, 48], "upsample_at": [0.5]},
-        "sampling": {"rays": 1024, "coarse": 24, "fine": 12, "coarse_keep": 12},
-        "neus": {"s_start": 20, "s_end": 150, "ramp": 0.7},
+        "sampling": {"rays": 1024},
         "light": {"env_height": 32},
     })
 
@@ -53,17 +58,17 @@ def _mesh_points(path) -> np.ndarray:
 
 def test_reconstructs_sphere_radius_and_chamfer(scene, tmp_path):
     torch.manual_seed(0)
-    tr = ShapeTrainer(_cfg(250), scene, tmp_path, progress=False, log=lambda s: None)
+    tr = ShapeTrainer(_cfg(150), scene, tmp_path, progress=False, log=lambda s: None)
     path = tr.run()
     pts = _mesh_points(path)
     r = np.linalg.norm(pts, axis=1)
     # 64 px views of a 40° camera at distance 4: one pixel ≈ 0.045 at the object (input frame);
-    # the start is a sphere of radius 0.96, so this needs ~4 pixels of carving
-    assert abs(np.median(r) - RADIUS) < 0.045, np.median(r)
+    # the start is a sphere of radius 0.96, ~4 pixels of carving; ask for half a pixel
+    assert abs(np.median(r) - RADIUS) < 0.02, np.median(r)
     g = np.random.default_rng(0).normal(size=(20000, 3))
     gt = RADIUS * g / np.linalg.norm(g, axis=1, keepdims=True)
     cd = chamfer_points(pts, gt, voxel=0.01)["cd"]
-    assert cd < 0.045, cd
+    assert cd < 0.02, cd
     assert (tmp_path / "log.jsonl").is_file()
 
 

@@ -244,6 +244,12 @@ class ShapeTrainer:
                 l_occ = losses.occlusion_loss(out["occ"][keep], tgt)
                 loss = loss + lc.occlusion * l_occ
         self.opt.zero_grad(set_to_none=True)
+        if not torch.isfinite(loss):
+            # never let one bad batch poison the grids (Adam would spread the NaN everywhere)
+            m.env.release()
+            self.log(f"[shape] step {self.step}: non-finite loss, step skipped")
+            return {"loss": float("nan"), "color": float("nan"), "eik": float("nan"),
+                    "occ": 0.0, "nsmooth": 0.0, "psnr": 0.0, "s": s, "res": m.sdf.res}
         loss.backward()
         g = m.sdf.grid
         if cfg.grid.grad_smooth > 0 and g.grad is not None:
