@@ -73,6 +73,8 @@ def main(argv: list[str] | None = None) -> int:
 
     cfg = resolve(ShapeConfig, "shape", a.preset, a.overrides)
     cfg.eval_every_s = 0
+    if a.threads:
+        cfg.threads = a.threads  # the trainer applies cfg.threads
     if a.scene:
         from voxnero.data.detect import load_scene
 
