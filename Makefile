@@ -6,6 +6,7 @@ VENV    ?= .venv
 VPY     := $(VENV)/bin/python
 TORCH   ?= torch==2.13.0
 STAMP   := $(VENV)/.voxnero-installed
+GLTF_VALIDATOR ?= gltf-validator@2.0.0-dev.3.10
 DEMO_OUT ?= runs/demo
 
 .PHONY: setup sysdeps demo test test-all lint clean
@@ -16,12 +17,16 @@ setup: $(STAMP)
 sysdeps:
 	@bash tools/install_sysdeps.sh
 
-$(STAMP): setup.cfg pyproject.toml tools/install_sysdeps.sh
+$(STAMP): setup.cfg pyproject.toml tools/install_sysdeps.sh Makefile
 	@$(MAKE) --no-print-directory sysdeps
 	@test -x $(VPY) || $(PY) -m venv $(VENV)
 	@# torch first and explicitly: a bare 'torch' requirement would pull a multi-GB CUDA build.
 	@$(VPY) -c "import torch" 2>/dev/null || $(VPY) -m pip install -q $(TORCH)
 	$(VPY) -m pip install -q -e ".[test]"
+	@# The Khronos glTF validator (npm) checks exported model.glb files in the tests.
+	@if command -v npm >/dev/null 2>&1; then \
+	  npm install --silent --no-audit --no-fund --prefix .node $(GLTF_VALIDATOR); \
+	else echo "npm not found: the glTF validator test will be skipped"; fi
 	@touch $(STAMP)
 
 demo: $(STAMP)
@@ -37,4 +42,4 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check voxnero tests tools
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) .node runs .pytest_cache
