@@ -8,6 +8,8 @@ resume from its checkpoint.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import torch
@@ -124,3 +126,21 @@ def test_sigterm_saves_checkpoint(scene, tmp_path):
         tr.run()
     assert torch.load(tmp_path / CKPT, weights_only=False)["step"] == 5
     assert signal.getsignal(signal.SIGTERM) == before  # the trainer's handler is removed
+
+
+def test_resolve_switches_decisions():
+    from voxnero.shape.trainer import resolve_switches
+
+    def sw(light, background="unknown"):
+        cfg = from_dict(ShapeConfig, {"light": light})
+        return resolve_switches(cfg, SimpleNamespace(background=background, meta={}))
+
+    d = sw({})
+    assert (d.background, d.occlusion, d.indirect, d.metallic) == ("distant", False, False, True)
+    assert sw({}, background="alpha").background == "alpha"
+    assert sw({"background": "distant"}, background="alpha").background == "distant"
+    on = sw({"occlusion": "on"})
+    assert on.occlusion and on.indirect
+    assert not sw({"occlusion": "on", "indirect": "off"}).indirect
+    assert not sw({"indirect": "on"}).indirect  # no occlusion net to mix it in
+    assert not sw({"metallic": False}).metallic  # YAML reads off as false

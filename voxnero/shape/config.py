@@ -82,8 +82,11 @@ class LightConfig:
     env_init: float = 0.5
     """Initial env radiance (linear)."""
     max_log_radiance: float = 4.0
-    indirect: Switch = "off"
-    occlusion: Switch = "off"
+    indirect: Switch = "auto"
+    """Indirect-light net mixed in by the occlusion probability ("auto" = off for now)."""
+    occlusion: Switch = "auto"
+    """Occlusion net + Open3D ray-cast targets ("auto" = off for now: on the convex gold sphere
+    the targets from a bumpy 96³ mesh reported self-hits and the mixed light hurt)."""
     metallic: Switch = "auto"
     background: Literal["auto", "distant", "alpha"] = "auto"
     """distant: background pixel = env radiance along the ray; alpha: composite on the known

@@ -46,8 +46,11 @@ def resolve_switches(cfg: ShapeConfig, scene: Any) -> Switches:
 
     * background: images that carried alpha were composited on a known colour → "alpha";
       otherwise the environment is assumed distant → "distant".
-    * indirect / occlusion / metallic: "auto" means on (NeRO's full model); a later issue decides
-      them from the data.
+    * occlusion / indirect: "auto" means **off** for now (measured: the Open3D targets from a
+      bumpy 96³ mesh reported self-hits on the convex gold sphere and the mixed light hurt the
+      reconstruction; docs/STAGE1.md); "on" enables NeRO's full light model.
+    * metallic: "auto" means on (a dielectric is metallic = 0 within the model).
+    A later issue decides these from the data.
     """
     lc = cfg.light
 
@@ -58,8 +61,9 @@ def resolve_switches(cfg: ShapeConfig, scene: Any) -> Switches:
     if bg == "auto":
         bg = "alpha" if getattr(scene, "background", "") == "alpha" else "distant"
     color = tuple(getattr(scene, "meta", {}).get("bg_color", (1.0, 1.0, 1.0)))
-    return Switches(indirect=on(lc.indirect) and on(lc.occlusion),
-                    occlusion=on(lc.occlusion), metallic=on(lc.metallic),
+    occ = lc.occlusion in ("on", True)  # "auto" = off for now
+    # the indirect light is mixed in by the occlusion probability: it needs the occlusion net
+    return Switches(indirect=occ and on(lc.indirect), occlusion=occ, metallic=on(lc.metallic),
                     background=bg, bg_color=color)
 
 
