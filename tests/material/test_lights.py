@@ -78,7 +78,8 @@ def test_sh_irradiance_matches_brute_force_cosine_integral():
 
 
 def test_indirect_radiance_in_a_white_furnace():
-    """Constant unit env: the estimate is (1 - m) a + F0 A + B (split-sum directional albedo)."""
+    """Constant unit env: the estimate is (1 - m)(1 - E_d) a + F0 A + B (split-sum directional
+    albedo; E_d = 0.04 A + B is what the dielectric interface reflects)."""
     from voxnero.render.splitsum import split_sum_lookup
 
     ind = IndirectLight(torch.ones(16, 32, 3))
@@ -89,7 +90,8 @@ def test_indirect_radiance_in_a_white_furnace():
     r = torch.tensor([[0.4]] * 2)
     L = ind.radiance(n, w, a, m, r)
     A, B = split_sum_lookup(w[:1, 2], r[:1, 0])
-    want = (1 - m[0]) * a[0] + (0.04 * (1 - m[0]) + m[0] * a[0]) * A + B
+    e_d = 0.04 * A + B
+    want = (1 - m[0]) * (1 - e_d) * a[0] + (0.04 * (1 - m[0]) + m[0] * a[0]) * A + B
     assert torch.allclose(L[0], want, rtol=5e-3)
     assert torch.equal(L[1], torch.zeros(3))  # seen from below the surface
     assert torch.allclose(envmap_lookup(ind.blur, w), torch.ones(2, 3))

@@ -47,8 +47,11 @@ def test_ground_truth_relight_matches_mitsuba_on_a_crop(scene, env):
     Reduced check (~4 s each): view r_005, a 64 x 96 crop holding silhouette, object and
     background, 36 spp x 3 directions, 2 bounces. Measured 38.1 dB (sphere) and 33.0 dB (torus,
     noise-limited at this spp; 40-47 dB at 64 spp on whole images). Bound: >= 31 dB on the 8-bit
-    PNG, and the object's mean linear radiance within 1% + 0.005 per channel (the Disney-diffuse
-    / exact-Fresnel gap of Mitsuba's principled BSDF is ~ -5% on the torus' dark red channel).
+    PNG, and the object's mean linear radiance per channel within 1% + 0.005 for the metal and
+    10% + 0.005 for the dielectric: our diffuse lobe gets only the energy the specular interface
+    does not reflect (render/brdf.py; a white furnace returns 1), Mitsuba's principled BSDF
+    adds the two lobes (and uses Disney diffuse and exact Fresnel): measured ours/Mitsuba
+    0.92 / 0.94 / 0.95 on the torus crop (R, G, B).
     """
     root = DATA / scene
     asset = load_asset(f"gt:{root}")
@@ -67,7 +70,8 @@ def test_ground_truth_relight_matches_mitsuba_on_a_crop(scene, env):
     full = out["alpha"].numpy() == 1.0
     assert 0.3 < full.mean() < 0.95  # the crop holds object and background
     mp, mg = out["rgb"].numpy()[full].mean(0), gt_lin[full].mean(0)
-    assert np.all(np.abs(mp - mg) < 0.01 * mg + 0.005), (mp, mg)
+    rel = 0.01 if scene == "sphere_gold" else 0.10
+    assert np.all(np.abs(mp - mg) < rel * mg + 0.005), (mp, mg)
 
 
 def test_mirror_furnace_needs_the_bounces():

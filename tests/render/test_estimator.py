@@ -30,7 +30,9 @@ def _batch_mean(out: torch.Tensor, groups: int):
 
 def test_white_furnace_metal_and_dielectric():
     # constant unit radiance, albedo 1: a metal reflects A + B <= 1 (energy lost at high
-    # roughness); a dielectric reflects 1 + 0.04 A + B (the diffuse lobe is not (1 - F)-weighted)
+    # roughness); a dielectric reflects exactly 1 (its diffuse lobe gets what the specular
+    # interface does not reflect). At the last, grazing angle (n.v = 1e-6) the table is only
+    # resolved to its node spacing: there only "never more than 1" is checked.
     g = torch.Generator().manual_seed(0)
     thetas = [0.0, 0.8, 1.3, 1.55, math.pi / 2 - 1e-6]
     v = _views(thetas)
@@ -45,10 +47,33 @@ def test_white_furnace_metal_and_dielectric():
                            torch.full((N, 1), r), lambda d: torch.ones_like(d), 256, generator=g)
             mean, se = _batch_mean(out[:, 0], reps)
             A, B = split_sum_lookup(v[:, 2], torch.full((V,), r))
-            expect = A + B if m == 1.0 else 1 + 0.04 * A + B
-            assert (mean - expect).abs().max() < 4 * se.max() + 2e-3, (r, m, mean, expect)
-            if m == 1.0:
-                assert (mean <= 1 + 4 * se + 1e-3).all()
+            expect = A + B if m == 1.0 else torch.ones_like(A)
+            err = (mean - expect).abs()[:-1]
+            assert err.max() < 4 * se.max() + 2e-3, (r, m, mean, expect)
+            assert (mean <= 1 + 4 * se + 2e-3).all(), (r, m, mean)
+
+
+@pytest.mark.parametrize("r", [0.0, 0.02, 0.1])
+@pytest.mark.parametrize("m", [0.0, 0.5, 1.0])
+def test_white_furnace_general_frames_smooth_surfaces(r, m):
+    """Albedo 1 under unit radiance returns 1 for normals in every direction (not only +Z).
+
+    Near-mirrors are where float32 hurt: D from 1 - (n.h)^2 was ~10 % off at alpha = 1e-3 and
+    a mirror read 1.04; D now uses |n x h|^2. 3000 points x 24 samples: standard error < 0.003.
+    """
+    g = torch.Generator().manual_seed(3)
+    N = 3000
+    n = torch.nn.functional.normalize(torch.randn(N, 3, generator=g), dim=-1)
+    d = torch.nn.functional.normalize(torch.randn(N, 3, generator=g), dim=-1)
+    v = torch.nn.functional.normalize(n + 0.8 * d, dim=-1)
+    keep = (n * v).sum(-1) > 0.05
+    n, v = n[keep], v[keep]
+    M = len(n)
+    out = shade_mc(torch.zeros(M, 3), n, v, torch.ones(M, 3), torch.full((M, 1), m),
+                   torch.full((M, 1), r), EnvMap(torch.ones(32, 64, 3)), 24, generator=g)
+    mean = out[:, 0].mean()
+    se = out[:, 0].std() / math.sqrt(M)
+    assert abs(float(mean) - 1.0) < 4 * float(se) + 3e-3, (float(mean), float(se))
 
 
 def _smooth_env(H=32, W=64):

@@ -8,7 +8,7 @@ Indirect light (radiance arriving along a secondary ray that hits the object): t
 radiance of the hit point toward the ray's origin, estimated from the current material with a
 low-order light and no further bounce:
 
-    L_o(y, w) = (1 − m) · albedo · E(n_y) / π + L_blur(reflect(w, n_y)) · (F0 · A + B)
+    L_o(y, w) = (1 − m) · (1 − E_d) · albedo · E(n_y) / π + L_blur(reflect(w, n_y)) · (F0 · A + B)
 
 with E the irradiance from the map's order-2 spherical-harmonic projection (Ramamoorthi and
 Hanrahan 2001), L_blur the map average-pooled to ``8 × 16`` and (A, B) the split-sum terms
@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from voxnero.render.brdf import f0_from
+from voxnero.render.brdf import diffuse_weight, f0_from
 from voxnero.render.envmap import envmap_lookup, pixel_dirs, pixel_solid_angles
 from voxnero.render.splitsum import specular_split_sum
 
@@ -158,5 +158,5 @@ class IndirectLight:
         r = 2 * nw * n - w
         spec = specular_split_sum(f0_from(albedo, metallic), nw.clamp_min(0.0), roughness,
                                   envmap_lookup(self.blur, r))
-        diff = (1 - metallic) * albedo * E / math.pi
+        diff = (1 - metallic) * diffuse_weight(nw.clamp_min(0.0), roughness) * albedo * E / math.pi
         return torch.where(nw > 0, diff + spec, torch.zeros_like(diff))

@@ -153,7 +153,7 @@ def _vndf_pdf_local(vl: Tensor, ll: Tensor, a: Tensor) -> Tensor:
     nv = vl[..., 2]
     a2 = a * a
     s = torch.sqrt(a2 + (1.0 - a2) * nv * nv)
-    pdf = ggx_D(h[..., 2], a) / (2.0 * (nv + s))
+    pdf = ggx_D(h[..., 2], a, h[..., 0] ** 2 + h[..., 1] ** 2) / (2.0 * (nv + s))
     return torch.where((vdh > 0) & (h[..., 2] > 0), pdf, torch.zeros_like(pdf))
 
 

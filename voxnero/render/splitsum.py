@@ -179,3 +179,42 @@ def specular_split_sum(f0: Tensor, n_dot_v: Tensor, roughness: Tensor,
     """
     A, B = split_sum_lookup(n_dot_v, roughness)
     return prefiltered_light * (f0 * A + B)
+
+
+def dielectric_albedo(n_dot_v: Tensor, roughness: Tensor) -> Tensor:
+    """Directional albedo E_d = 0.04 A + B of the dielectric (F0 = 0.04) specular lobe.
+
+    Args:
+        n_dot_v: (..., 1) cosine to the view direction.
+        roughness: broadcastable perceptual roughness.
+
+    Returns:
+        E_d, broadcast shape, in [0, 1].
+    """
+    a, b = split_sum_lookup(n_dot_v.clamp(0.0, 1.0), roughness)
+    return (0.04 * a + b).clamp(0.0, 1.0)
+
+
+def dielectric_albedo_avg(roughness: Tensor) -> Tensor:
+    """Cosine-weighted hemispherical average E_avg(r) = 2 int_0^1 E_d(mu, r) mu dmu.
+
+    Computed from the split-sum table (nodes at x = sqrt(mu): E_avg = 4 int_0^1 E_d x^3 dx,
+    trapezoid rule) and interpolated linearly in sqrt(r) like the table itself.
+
+    Args:
+        roughness: perceptual roughness, any shape.
+
+    Returns:
+        E_avg, same shape, in [0, 1).
+    """
+    table = get_table(roughness.device).to(roughness.dtype)
+    R = table.shape[0]
+    x = torch.linspace(0.0, 1.0, R, dtype=table.dtype, device=table.device)
+    e = 0.04 * table[..., 0] + table[..., 1]  # (R nv-nodes, R r-nodes)
+    f = 4.0 * e * x[:, None] ** 3
+    avg = ((f[1:] + f[:-1]) * 0.5 * (x[1:] - x[:-1])[:, None]).sum(0)  # (R,)
+    y = torch.sqrt(roughness.clamp(1e-8, 1.0)) * (R - 1)
+    y0 = torch.floor(y).clamp(max=R - 2)
+    w = y - y0
+    i = y0.long()
+    return (avg[i] * (1 - w) + avg[i + 1] * w).clamp(0.0, 0.999)
