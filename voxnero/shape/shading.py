@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import torch
 
-from voxnero.render.brdf import f0_from
+from voxnero.render.brdf import DIELECTRIC_F0, f0_from
 from voxnero.render.splitsum import split_sum_lookup
 
 
@@ -50,4 +50,6 @@ def shade(n: torch.Tensor, d: torch.Tensor, albedo: torch.Tensor, metallic: torc
     n_dot_v = (-(d * n).sum(-1, keepdim=True)).clamp(1e-4, 1.0)
     a, b = split_sum_lookup(n_dot_v, roughness)
     f0 = f0_from(albedo, metallic)
-    return (1.0 - metallic) * albedo * diff_light + (f0 * a + b) * spec_light
+    # the diffuse lobe gets what the dielectric interface does not reflect (render/brdf.py)
+    w_diff = (1.0 - (DIELECTRIC_F0 * a + b)).clamp(0.0, 1.0)
+    return (1.0 - metallic) * w_diff * albedo * diff_light + (f0 * a + b) * spec_light
