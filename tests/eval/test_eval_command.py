@@ -88,3 +88,62 @@ def test_scene_without_ground_truth_is_a_data_error(tmp_path, capsys):
                "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert rc == 2 and "no ground truth" in err and "test_mask/" in err
+
+
+def _panels(png: Path) -> tuple:
+    """Prediction and truth panels of a comparison PNG (``pred | gap | truth | ...``), in [0, 1]."""
+    import numpy as np
+
+    from voxnero.eval.report import GAP
+
+    a = np.asarray(Image.open(png)).astype(np.float64) / 255
+    w = a.shape[0]  # square test views
+    return a[:, :w], a[:, w + GAP:2 * w + GAP]
+
+
+def test_eval_of_a_stage2_run(tmp_path, capsys):
+    """``voxnero material`` on a tiny synth sphere, then ``voxnero eval`` on its folder."""
+    import math
+
+    import numpy as np
+
+    from voxnero.synth.config import SynthConfig
+    from voxnero.synth.make import make_scene
+
+    cfg = SynthConfig(resolution=32, n_train=6, n_test=3, spp=4)
+    cfg.env.height = 32
+    scene = make_scene("sphere", tmp_path / "scene", cfg, progress=False)
+    run = tmp_path / "run"
+    assert main(["material", str(scene / "gt" / "mesh.ply"), "iters=60", "batch=16",
+                 "texture_size=64", "eval_views=0", "render.spp_cos=2", "render.spp_ggx=2",
+                 "render.spp_env=2", "light.env_height=[16]", "threads=1", "bg_batch=1024",
+                 "--scene", str(scene), "--out", str(run), "--no-progress"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "eval"
+    # the scene comes from the run's config.yaml; first test view only, one comparison each
+    assert main(["eval", str(run), "material_views=1", "images=1", "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    # (1) geometry: the stage-1 mesh the run was fitted on (here the GT sphere's mesh)
+    assert m["mesh"] == str(scene / "gt" / "mesh.ply") and m["run"] == str(run)
+    assert m["chamfer"]["cd"] < 0.02 and m["normals"]["mean_deg"] < 3
+    # (2) image / material metrics of the exported asset
+    assert m["views"] == [0] and m["asset"] == str(run / "model.glb")
+    for k in ("psnr", "psnr_object"):
+        assert math.isfinite(m["novel_view"][k]) and m["novel_view"][k] > 15, k
+    assert 0 < m["novel_view"]["ssim"] <= 1
+    for k in ("metallic_mae", "roughness_mae"):
+        assert 0 <= m["materials"][k] <= 1, k
+    assert math.isfinite(m["materials"]["albedo_psnr"]) and m["materials"]["albedo_psnr"] > 15
+    assert "images" not in m  # the stage-1 "not evaluated" note is gone
+    md = (out / "metrics.md").read_text()
+    assert "| novel_view.psnr |" in md and "| materials.metallic_mae |" in md
+    # the comparison PNG is the same render (same seed) as the metric: its 8-bit panels give
+    # the same whole-image PSNR up to quantisation
+    pred, gt = _panels(out / "render_r_000.png")
+    psnr_png = -10 * math.log10(float(np.mean((pred - gt) ** 2)))
+    assert abs(psnr_png - m["novel_view"]["psnr"]) < 0.5
+    assert (out / "normals_r_000.png").is_file() and not (out / "render_r_001.png").exists()
+    assert "novel views PSNR" in capsys.readouterr().out
+    # a bad setting is a one-line config error
+    assert main(["eval", str(run), "material_views=0", "--out", str(out)]) == 2
+    assert "material_views" in capsys.readouterr().err

@@ -3,13 +3,19 @@
 ``voxnero eval RUN_OR_MESH --scene SCENE --out DIR [key=value ...]``
 
 RUN_OR_MESH is a run folder holding ``mesh.ply`` (written in the scene's input frame by
-``voxnero shape``) or a mesh file in the input frame. SCENE is a scene with evaluation data
+``voxnero shape``), a mesh file in the input frame, or a stage-2 run folder of ``voxnero
+material`` (``model.glb`` + ``envmap.exr``). SCENE is a scene with evaluation data
 (``test_mask/`` and ``gt/test_depth/``, optionally ``gt/test_normal/``), e.g. a dev scene or one
 made by ``voxnero synth``; without ``--scene`` the scene named in the run's ``config.yaml``
 (``_meta.scene``) is used. Writes ``metrics.json``, ``metrics.md``, normal-map comparison PNGs
 and ``config.yaml`` into ``--out``. Protocols: :mod:`voxnero.eval.chamfer`,
-:mod:`voxnero.eval.normals`. Image metrics (PSNR/SSIM) need renders, which runs do not write
-yet; they are reported as not evaluated.
+:mod:`voxnero.eval.normals`. Image metrics (PSNR/SSIM) need renders: for a stage-1 run they are
+reported as not evaluated; for a stage-2 run, Chamfer / normal error are computed on the stage-1
+mesh it was fitted on (``_meta.mesh`` of its config; ``model.glb``'s mesh if that file is gone)
+and the exported asset (``model.glb`` textures + ``envmap.exr``) is rendered at
+``eval.material_views`` test views with ``eval.material_spp`` samples by
+:func:`voxnero.material.evaluate.evaluate_scene`: novel-view PSNR/SSIM, relighting PSNR/SSIM,
+albedo PSNR, metallic / roughness MAE, plus ``render_<view>.png`` comparisons.
 """
 
 from __future__ import annotations
@@ -20,18 +26,23 @@ import time
 from pathlib import Path
 
 NAME = "eval"
-HELP = "score a mesh against a scene's ground truth (Chamfer, normal error)"
+HELP = "score a run against a scene's ground truth (Chamfer, normals; stage 2: images, BRDF)"
 DESCRIPTION = (
     "Score a mesh against a scene's ground truth by the project's protocol: Chamfer distance "
     "(GT test-view depth vs the mesh ray-cast at the same pixels, voxel 0.01, input frame) and "
     "normal error (degrees) at the test views.\n\n"
     "RUN_OR_MESH: a run folder holding mesh.ply (as 'voxnero shape' writes it) or a mesh file, "
-    "both in the scene's input frame. --scene: a scene with test_mask/ and gt/test_depth/ "
+    "both in the scene's input frame, or a 'voxnero material' folder (model.glb + envmap.exr): "
+    "then the stage-1 mesh it was fitted on is scored as above and the exported asset is "
+    "rendered at test views for novel-view / relighting PSNR and SSIM, albedo PSNR, metallic "
+    "and roughness MAE. --scene: a scene with test_mask/ and gt/test_depth/ "
     "(gt/test_normal/ optional), e.g. a dev scene; default: _meta.scene of the run's "
     "config.yaml.\n\n"
     "Writes metrics.json, metrics.md, normal-map comparison PNGs and config.yaml in --out.\n"
     "Keys (eval section): split, voxel, pred_pixels (unambiguous|mask|all), normal_source "
-    "(vertex|face), views ([0, 3, ...]), images (number of comparison PNGs).")
+    "(vertex|face), views ([0, 3, ...]), images (number of comparison PNGs), material_views "
+    "(stage 2: test views rendered, default 4, -1 all), material_spp (stage 2: [cos, ggx, env] "
+    "samples, default [8, 8, 8]).")
 DESCRIPTION = "\n\n".join(textwrap.fill(p, 92) for p in DESCRIPTION.split("\n\n"))
 
 
@@ -39,22 +50,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from voxnero.cli import add_common
 
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    add_common(parser, "run folder holding mesh.ply, or a mesh file (input frame)")
+    add_common(parser, "run folder holding mesh.ply, a 'voxnero material' run folder, or a "
+               "mesh file (input frame)")
     parser.add_argument("--scene", default=None,
                         help="scene with ground truth (default: the scene in the run's "
                              "config.yaml)")
 
 
+def is_stage2_run(target: str | Path) -> bool:
+    """Whether ``target`` is a ``voxnero material`` output folder (model.glb + envmap.exr)."""
+    p = Path(target)
+    return p.is_dir() and (p / "model.glb").is_file() and (p / "envmap.exr").is_file()
+
+
+def _meta(run: Path) -> dict:
+    import yaml
+
+    cfg = run / "config.yaml"
+    if not cfg.is_file():
+        return {}
+    try:
+        return (yaml.safe_load(cfg.read_text()) or {}).get("_meta", {}) or {}
+    except yaml.YAMLError:
+        return {}
+
+
 def find_mesh(target: str | Path) -> Path:
-    """The mesh to evaluate: ``target`` itself or ``target/mesh.ply``."""
+    """The mesh to evaluate: ``target`` itself or ``target/mesh.ply``; for a stage-2 run, the
+    stage-1 mesh it was fitted on (``_meta.mesh`` of its ``config.yaml``, same geometry as the
+    exported model) or, when that file is gone, ``target/model.glb``."""
     from voxnero.errors import DataError
 
     p = Path(target)
     if p.is_dir():
         if (p / "mesh.ply").is_file():
             return p / "mesh.ply"
-        raise DataError("this folder holds no mesh.ply", path=p,
-                        fix="pass a finished run folder of 'voxnero shape' or a mesh file")
+        if is_stage2_run(p):
+            stage1 = _meta(p).get("mesh")
+            if stage1 and Path(stage1).is_file():
+                return Path(stage1)
+            return p / "model.glb"
+        raise DataError("this folder holds no mesh.ply (nor model.glb + envmap.exr)", path=p,
+                        fix="pass a finished run folder of 'voxnero shape' or 'voxnero "
+                            "material', or a mesh file")
     if not p.exists():
         raise DataError("no such run folder or mesh file", path=p,
                         fix="pass a run folder holding mesh.ply or a .ply/.obj mesh")
@@ -82,8 +120,77 @@ def find_scene(target: str | Path, scene: str | None) -> Path:
                       "test_mask/ and gt/test_depth/, e.g. a dev scene)")
 
 
-def evaluate(mesh_path: Path, scene_path: Path, cfg, out: Path) -> dict:
-    """Load everything, compute the metrics, write the report; returns the metrics dict."""
+def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]:
+    """Image and material metrics of a stage-2 run, by :func:`voxnero.material.evaluate`.
+
+    The exported asset is what is scored: ``model.glb`` (mesh + baked textures, read by
+    :func:`voxnero.relight.asset.load_asset`) and ``envmap.exr``, rendered at ``cfg.material_views``
+    test views with ``cfg.material_spp`` samples; indirect light / visibility casts as the run
+    decided (``decisions`` in ``materials.json``).
+
+    Args:
+        run: the ``voxnero material`` output folder.
+        scene_path: scene with a ``test`` split (and ``gt/test_*`` material maps, relight splits
+            if any).
+        cfg: :class:`voxnero.eval.config.EvalConfig`.
+        split: the loaded ``test`` split (cameras in the unit frame, linear images), for the
+            comparison PNGs.
+
+    Returns:
+        ``(metrics, images)``: metrics as :func:`voxnero.material.evaluate.evaluate_scene` returns
+        them (plus ``asset``, ``indirect``, ``visibility``), and ``{name: (pred, gt)}`` sRGB
+        renders of the first ``cfg.images`` evaluated views.
+    """
+    import json
+
+    import torch
+
+    from voxnero.data.detect import load_scene
+    from voxnero.io.color import linear_to_srgb
+    from voxnero.io.exr import read_envmap
+    from voxnero.material.evaluate import evaluate_scene, render_view
+    from voxnero.material.render import Strategies
+    from voxnero.material.surface import Geometry
+    from voxnero.relight.asset import load_asset
+
+    asset = load_asset(run / "model.glb")
+    norm = load_scene(scene_path, splits=("test",)).norm  # the frame evaluate_scene uses
+    geom = Geometry.from_legacy(asset.legacy_mesh(norm))
+    env = torch.from_numpy(read_envmap(run / "envmap.exr")).float()
+    dec = {}
+    if (run / "materials.json").is_file():
+        dec = json.loads((run / "materials.json").read_text()).get("decisions", {}) or {}
+    indirect = bool(dec.get("indirect", True))
+    visibility = bool(dec.get("visibility_casts", True))
+    spp = Strategies(*(int(x) for x in cfg.material_spp))
+    res = evaluate_scene(scene_path, geom, asset.field, env, spp, indirect, visibility,
+                         views=cfg.material_views, out_dir=None, log=lambda _: None)
+    if not res:
+        return {"novel_view": "not evaluated: the scene has no test split"}, {}
+    res.update(asset=str(run / "model.glb"), indirect=indirect, visibility=visibility)
+    images = {}
+    gen = torch.Generator().manual_seed(1234)
+    if split is not None and split.images is not None:
+        for i in res["views"][:cfg.images]:
+            r = render_view(geom, asset.field, env, split.cameras, i, spp, indirect, visibility,
+                            generator=gen)
+            images[f"render_{split.names[i]}"] = (linear_to_srgb(r["rgb"].clamp(0, 1)),
+                                                  linear_to_srgb(split.images[i].clamp(0, 1)))
+    return res, images
+
+
+def evaluate(mesh_path: Path, scene_path: Path, cfg, out: Path,
+             stage2_run: Path | None = None) -> dict:
+    """Load everything, compute the metrics, write the report; returns the metrics dict.
+
+    Args:
+        mesh_path: mesh in the scene's input frame (``.ply``/``.obj``, or a ``model.glb``).
+        scene_path: scene with ground truth.
+        cfg: :class:`voxnero.eval.config.EvalConfig`.
+        out: report folder.
+        stage2_run: a ``voxnero material`` output folder: its image / material metrics are
+            added (:func:`stage2_metrics`).
+    """
     from voxnero.data.detect import load_scene
     from voxnero.errors import DataError
     from voxnero.eval.chamfer import chamfer_at_views
@@ -114,7 +221,12 @@ def evaluate(mesh_path: Path, scene_path: Path, cfg, out: Path) -> dict:
         raise ConfigError(f"eval.views={cfg.views} must be indices in [0, {sp.n})")
     cams, depth, masks = sp.cameras[idx], sp.depth[idx], sp.masks[idx]
     names = [sp.names[i] for i in idx]
-    mesh = load_mesh(mesh_path, norm=scene.norm)  # unit frame, like the scene's cameras
+    if mesh_path.suffix.lower() == ".glb":
+        from voxnero.relight.asset import load_asset
+
+        mesh = load_asset(mesh_path).legacy_mesh(scene.norm)
+    else:
+        mesh = load_mesh(mesh_path, norm=scene.norm)  # unit frame, like the scene's cameras
     t_load = time.perf_counter() - t0
 
     metrics: dict = {"mesh": str(mesh_path), "scene": str(scene_path), "split": cfg.split,
@@ -144,8 +256,19 @@ def evaluate(mesh_path: Path, scene_path: Path, cfg, out: Path) -> dict:
             images[f"normals_{names[k]}"] = (pred_vis, gt_vis)
     else:
         metrics["normals"] = f"not evaluated: no gt/{cfg.split}_normal/ in the scene"
-    metrics["images"] = "not evaluated: the run has no renders of the test views"
-    metrics["time_s"] = {"load": round(t_load, 3), "metrics": round(time.perf_counter() - t1, 3)}
+    t_mesh = time.perf_counter() - t1
+    times = {"load": round(t_load, 3), "metrics": round(t_mesh, 3)}
+    if stage2_run is None:
+        metrics["images"] = "not evaluated: the run has no renders of the test views"
+    else:
+        t2 = time.perf_counter()
+        test = sp if cfg.split == "test" else None
+        s2, s2_images = stage2_metrics(stage2_run, scene_path, cfg, test)
+        metrics["run"] = str(stage2_run)
+        metrics.update(s2)
+        images.update(s2_images)
+        times["stage2"] = round(time.perf_counter() - t2, 3)
+    metrics["time_s"] = times
     write_report(out, metrics, images, title=f"VoxNeRO evaluation of {mesh_path}")
     return metrics
 
@@ -160,7 +283,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     save_resolved(out, {"eval": cfg}, meta={"command": "eval", "mesh": str(mesh_path),
                                             "scene": str(scene_path)})
-    m = evaluate(mesh_path, scene_path, cfg, out)
+    stage2 = Path(args.target) if is_stage2_run(args.target) else None
+    m = evaluate(mesh_path, scene_path, cfg, out, stage2_run=stage2)
     c = m["chamfer"]
     line = (f"chamfer {c['cd']:.5f} (acc {c['acc']:.5f}, comp {c['comp']:.5f}; "
             f"{m['n_views']} views, input frame)")
@@ -168,6 +292,14 @@ def run(args: argparse.Namespace) -> int:
         line += (f"; normal error mean {m['normals']['mean_deg']:.2f} deg, median "
                  f"{m['normals']['median_deg']:.2f} deg")
     print(line)
+    if isinstance(m.get("novel_view"), dict):
+        nv, mt = m["novel_view"], m["materials"]
+        print(f"novel views PSNR {nv['psnr']:.2f} dB (object {nv['psnr_object']:.2f} dB), SSIM "
+              f"{nv['ssim']:.3f}; albedo PSNR {mt['albedo_psnr']:.2f} dB, metallic MAE "
+              f"{mt['metallic_mae']:.3f}, roughness MAE {mt['roughness_mae']:.3f} "
+              f"({len(m['views'])} views)")
+        for env, v in m.get("relight", {}).items():
+            print(f"relight {env}: PSNR {v['psnr']:.2f} dB, SSIM {v['ssim']:.3f}")
     if "warning" in m:
         print(f"warning: {m['warning']}")
     print(f"wrote {out / 'metrics.json'} and {out / 'metrics.md'}")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 from voxnero.errors import ConfigError
@@ -24,10 +24,25 @@ class EvalConfig:
     views: list[int] | None = None
     """Subset of view indices to evaluate (None: all views of the split)."""
     images: int = 2
-    """Number of views written as normal-map comparison PNGs (0: none)."""
+    """Number of views written as comparison PNGs, normal maps and, for a stage-2 run, renders
+    (0: none)."""
+    material_views: int = 4
+    """Stage-2 runs: test views rendered for the image / material metrics, evenly spread
+    (-1: all; ``voxnero material`` itself uses all)."""
+    material_spp: list[int] = field(default_factory=lambda: [8, 8, 8])
+    """Stage-2 runs: samples per pixel of the renders (cosine, GGX, env-map strategies);
+    ``voxnero material`` uses ``render.spp_* × render.eval_scale`` (24 each by default)."""
 
     def validate(self) -> None:
         if self.voxel < 0:
             raise ConfigError(f"eval.voxel={self.voxel} must be >= 0 (0: no downsampling)")
         if self.images < 0:
             raise ConfigError(f"eval.images={self.images} must be >= 0")
+        if self.material_views == 0 or self.material_views < -1:
+            raise ConfigError(f"eval.material_views={self.material_views} must be >= 1 or -1 "
+                              "(all test views)")
+        sp = list(self.material_spp)
+        if len(sp) != 3 or min(sp) < 0 or sum(sp) < 1:
+            raise ConfigError(f"eval.material_spp={self.material_spp} must be three counts "
+                              "(cosine, GGX, env) >= 0 with at least one sample",
+                              fix="e.g. eval.material_spp=[8,8,8]")
