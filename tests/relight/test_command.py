@@ -105,14 +105,13 @@ def test_relight_from_a_transforms_json(sphere_asset_files, env_file, tmp_path):
     """Cameras from a NeRF-synthetic transforms.json (OpenGL c2w, no images needed): the
     object is seen where the pose puts it (centred view covers the middle, an off-axis view
     shifts it to the image side)."""
-    from voxnero.cameras.cameras import opencv_to_opengl
-    from voxnero.relight.cameras import look_at
+    from voxnero.cameras.cameras import look_at_opencv, opencv_to_opengl
 
     c = np.array([0.1, 0.2, 0.3])
     eye = c + np.array([0.0, -3.0, 0.0])
     frames = []
     for target in (c, c + np.array([0.6, 0.0, 0.0])):  # second view looks right of the object
-        m = opencv_to_opengl(look_at(eye, target, np.array([0, 0, 1.0])))
+        m = opencv_to_opengl(look_at_opencv(eye[None], target)[0])
         frames.append({"file_path": f"./none/v{len(frames)}",
                        "transform_matrix": np.asarray(m).tolist()})
     flat = tmp_path / "flat.exr"  # constant env: every background pixel is exactly 0.5

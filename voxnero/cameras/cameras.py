@@ -166,3 +166,26 @@ class Cameras:
         K = self.K[cam]
         uv = (pc @ K.T)[:, :2] / z[:, None]
         return uv, z
+
+
+def look_at_opencv(eyes: np.ndarray, target: np.ndarray | None = None,
+                   up: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """OpenCV camera-to-world matrices (N, 4, 4) looking from ``eyes`` (N, 3) at ``target``.
+
+    Columns: x right = normalize(forward × up), y down = forward × x, z forward, centre.
+    Where forward is parallel to ``up`` the world +Y is used as up instead (no roll otherwise).
+    """
+    eyes = np.asarray(eyes, dtype=np.float64)
+    target = np.zeros(3) if target is None else np.asarray(target, dtype=np.float64)
+    fwd = target - eyes
+    fwd /= np.linalg.norm(fwd, axis=1, keepdims=True)
+    up_v = np.broadcast_to(np.asarray(up, dtype=np.float64), fwd.shape).copy()
+    x = np.cross(fwd, up_v)
+    bad = np.linalg.norm(x, axis=1) < 1e-9
+    if bad.any():
+        x[bad] = np.cross(fwd[bad], np.array([0.0, 1.0, 0.0]))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    y = np.cross(fwd, x)
+    c2w = np.tile(np.eye(4), (len(eyes), 1, 1))
+    c2w[:, :3, 0], c2w[:, :3, 1], c2w[:, :3, 2], c2w[:, :3, 3] = x, y, fwd, eyes
+    return c2w

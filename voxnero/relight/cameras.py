@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from voxnero.cameras.cameras import Cameras, opengl_to_opencv
+from voxnero.cameras.cameras import Cameras, look_at_opencv, opengl_to_opencv
 from voxnero.errors import DataError
 
 
@@ -93,28 +93,6 @@ def transforms_cameras(path: str | Path) -> tuple[Cameras, list[str]]:
     return Cameras(np.asarray(Ks), np.asarray(c2ws), w, h), names
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """OpenCV camera-to-world (x right, y down, z forward) at ``eye`` looking at ``target``,
-    no roll (image x axis perpendicular to ``up``).
-
-    Args:
-        eye, target, up: (3,) points / vector.
-
-    Returns:
-        (4, 4) c2w.
-    """
-    f = np.asarray(target, float) - np.asarray(eye, float)
-    f /= np.linalg.norm(f)
-    r = np.cross(f, up)
-    if np.linalg.norm(r) < 1e-9:  # looking along up: any perpendicular
-        r = np.cross(f, np.array([1.0, 0, 0]) if abs(f[0]) < 0.9 else np.array([0, 1.0, 0]))
-    r /= np.linalg.norm(r)
-    d = np.cross(f, r)
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = r, d, f, eye
-    return m
-
-
 def orbit_cameras(center: np.ndarray, radius: float, up: np.ndarray, frames: int = 36,
                   elevation_deg: float = 20.0, distance: float = 0.0, fov_deg: float = 40.0,
                   size: int = 256, start_deg: float = 0.0) -> tuple[Cameras, list[str]]:
@@ -148,12 +126,13 @@ def orbit_cameras(center: np.ndarray, radius: float, up: np.ndarray, frames: int
     f = 0.5 * size / math.tan(half)
     K = np.array([[f, 0, size / 2], [0, f, size / 2], [0, 0, 1]])
     el = math.radians(elevation_deg)
-    c2ws = []
+    eyes = []
     for k in range(frames):
         az = math.radians(start_deg) + 2 * math.pi * k / frames
         d = math.cos(el) * (math.cos(az) * e1 + math.sin(az) * e2) + math.sin(el) * up
-        c2ws.append(look_at(np.asarray(center, float) + dist * d, np.asarray(center, float), up))
-    return (Cameras(np.repeat(K[None], frames, 0), np.asarray(c2ws), size, size),
+        eyes.append(np.asarray(center, float) + dist * d)
+    c2ws = look_at_opencv(np.asarray(eyes), np.asarray(center, float), tuple(up))
+    return (Cameras(np.repeat(K[None], frames, 0), c2ws, size, size),
             [f"orbit_{k:03d}" for k in range(frames)])
 
 

@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from voxnero.cameras.cameras import look_at_opencv  # noqa: F401  (re-exported: the rig's look-at)
+
 if TYPE_CHECKING:
     from voxnero.cameras.cameras import Cameras
 
@@ -70,29 +72,6 @@ def offset_lattice(n_test: int, train_dirs: np.ndarray, elev_range_deg: tuple[fl
             best = dirs
             best_info = {"offset": offset, "phase": phase, "min_angle_test_to_train_deg": m}
     return best, best_info
-
-
-def look_at_opencv(eyes: np.ndarray, target: np.ndarray | None = None,
-                   up: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> np.ndarray:
-    """OpenCV camera-to-world matrices (N, 4, 4) looking from ``eyes`` (N, 3) at ``target``.
-
-    Columns: x right = normalize(forward × up), y down = forward × x, z forward, centre.
-    Where forward is parallel to ``up`` the world +Y is used as up instead (no roll otherwise).
-    """
-    eyes = np.asarray(eyes, dtype=np.float64)
-    target = np.zeros(3) if target is None else np.asarray(target, dtype=np.float64)
-    fwd = target - eyes
-    fwd /= np.linalg.norm(fwd, axis=1, keepdims=True)
-    up_v = np.broadcast_to(np.asarray(up, dtype=np.float64), fwd.shape).copy()
-    x = np.cross(fwd, up_v)
-    bad = np.linalg.norm(x, axis=1) < 1e-9
-    if bad.any():
-        x[bad] = np.cross(fwd[bad], np.array([0.0, 1.0, 0.0]))
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    y = np.cross(fwd, x)
-    c2w = np.tile(np.eye(4), (len(eyes), 1, 1))
-    c2w[:, :3, 0], c2w[:, :3, 1], c2w[:, :3, 2], c2w[:, :3, 3] = x, y, fwd, eyes
-    return c2w
 
 
 def focal_from_fov(width: int, fov_deg: float) -> float:
