@@ -31,7 +31,10 @@ def alpha_from_interval(f_prev: torch.Tensor, f_next: torch.Tensor, s: float | t
     # (Φ(a) − Φ(b)) / Φ(a) = 1 − Φ(b)/Φ(a) = 1 − exp(logσ(sb) − logσ(sa)); log-space is stable.
     la = torch.nn.functional.logsigmoid(s * f_prev)
     lb = torch.nn.functional.logsigmoid(s * f_next)
-    return (1.0 - torch.exp(lb - la)).clamp(0.0, 1.0)
+    # a ray leaving the surface has lb > la and α = 0; capping the exponent at 0 keeps that value
+    # and avoids exp → inf there, whose backward (0 · inf) made the SDF gradient NaN for
+    # s·Δf > 88 (float32), e.g. s = 1e3 across a 0.1 step (tests/stability/)
+    return (1.0 - torch.exp((lb - la).clamp(max=0.0))).clamp(0.0, 1.0)
 
 
 def alpha_from_samples(sdf: torch.Tensor, cos: torch.Tensor, dists: torch.Tensor,
