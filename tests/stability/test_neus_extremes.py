@@ -9,6 +9,8 @@ scheduled maximum (``ShapeConfig().neus.s_end``).
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from hypothesis import given, settings
@@ -153,3 +155,32 @@ def test_renderer_at_extreme_sharpness(s, alpha_mode):
     assert (acc[rho > r0 + 0.15] < 1e-3).all(), acc
     assert assert_finite_grads(m, f"s={s}") >= 4
     assert m.sdf.grid.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize("s", [1e3, 1e7])
+def test_trainer_steps_at_extreme_sharpness(s, tmp_path):
+    """``ShapeTrainer.train_step`` with the schedule pinned at s (s_start = s_end): no step is
+    skipped, gradients and parameters stay finite (a NaN gradient would reach Adam and fill the
+    grid with NaN — the trainer only guards against a non-finite *loss*)."""
+    from scenes import make_blender
+
+    from voxnero.config import from_dict
+    from voxnero.data.detect import load_scene
+    from voxnero.shape.config import ShapeConfig
+    from voxnero.shape.trainer import ShapeTrainer
+
+    make_blender(tmp_path / "scene", n={"train": 4}, w=40, h=32, seed=2)
+    sc = load_scene(tmp_path / "scene", splits=("train",))
+    cfg = from_dict(ShapeConfig, {
+        "iters": 50, "eval_every_s": 0, "preview_every": 0,
+        "grid": {"res": [24], "upsample_at": []}, "neus": {"s_start": s, "s_end": s},
+        "sampling": {"rays": 512, "coarse": 24, "fine": 8, "coarse_keep": 12},
+        "light": {"env_height": 8}})
+    msgs: list[str] = []
+    tr = ShapeTrainer(cfg, sc, tmp_path / "run", progress=False, log=msgs.append)
+    for i in range(4):
+        rec = tr.train_step()
+        tr.step += 1
+        assert rec["s"] == pytest.approx(s) and math.isfinite(rec["loss"]), (i, msgs)
+        assert_finite_grads(tr.model, f"s={s} step {i}")
+        assert all(bool(torch.isfinite(p).all()) for p in tr.model.parameters())
