@@ -138,12 +138,13 @@ def test_stage1_mirror_reflection_lands_by_the_law():
 
 @pytest.mark.parametrize("eps", [0.0, 1e-6, -1e-3, 1e-3])
 @pytest.mark.parametrize("radius_of", ["object", "bound"])
-def test_stage1_renderer_tangent_rays(eps, radius_of):
+@pytest.mark.parametrize("normals", ["analytic", "fd"])
+def test_stage1_renderer_tangent_rays(eps, radius_of, normals):
     """Rays tangent to the initial sphere SDF (impact parameter r0·(1 − eps)) and to the
-    sampling bound (radius 1: near = far, zero-length intervals): finite colour, accumulated
-    opacity in [0, 1], normals unit or zero (never NaN) and finite gradients of every
-    parameter."""
-    cfg = tiny_shape_config()
+    sampling bound (radius 1: near = far, zero-length intervals), analytic and
+    finite-difference SDF normals: finite colour, accumulated opacity in [0, 1], normals unit
+    or zero (never NaN) and finite gradients of every parameter."""
+    cfg = tiny_shape_config(grid={"normals": normals})
     m = tiny_model(cfg)
     r0 = cfg.grid.init_radius if radius_of == "object" else cfg.sampling.radius
     b = r0 * (1.0 - eps)
@@ -163,7 +164,7 @@ def test_stage1_renderer_tangent_rays(eps, radius_of):
         assert (out["acc"] >= 0).all() and (out["acc"] <= 1 + 1e-5).all()
         nn = out["normal"].norm(dim=-1)
         assert ((nn - 1).abs() < 1e-4).logical_or(nn == 0).all(), nn
-        assert_finite_grads(m, f"tangent eps={eps} {radius_of}")
+        assert_finite_grads(m, f"tangent eps={eps} {radius_of} {normals}")
 
 
 # ------------------------------------------------------------------------------- stage 2
