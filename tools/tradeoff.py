@@ -241,6 +241,22 @@ notebook) would report that process's RSS for every small child. Started from th
 the floor is the launcher's own ~10 MiB."""
 
 
+_LIVE: set[int] = set()
+"""Process groups of the children running now (killed if the sweep is interrupted)."""
+_LIVE_LOCK = threading.Lock()
+
+
+def kill_children() -> None:
+    """SIGKILL every running child's process group (they run in their own sessions, so a
+    Ctrl-C at the terminal does not reach them)."""
+    with _LIVE_LOCK:
+        for pgid in list(_LIVE):
+            try:
+                os.killpg(pgid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
 def run_child(cmd: Sequence[str], log: Path, timeout: float | None = None) -> ChildResult:
     """Run ``cmd``, stdout + stderr into ``log``; time it and read its peak RSS.
 
@@ -261,12 +277,21 @@ def run_child(cmd: Sequence[str], log: Path, timeout: float | None = None) -> Ch
         proc = subprocess.Popen([sys.executable, "-c", _LAUNCHER, str(res), *cmd], stdout=fh,
                                 stderr=subprocess.STDOUT, env=child_env(), cwd=REPO,
                                 start_new_session=True)
+        with _LIVE_LOCK:
+            _LIVE.add(proc.pid)
         try:
             proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)  # the launcher and the command
             proc.wait()
             return ChildResult(124, time.perf_counter() - t0, float("nan"))
+        except BaseException:  # Ctrl-C: do not leave the training running on its own
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+            raise
+        finally:
+            with _LIVE_LOCK:
+                _LIVE.discard(proc.pid)
     info = _json(res)
     if not info:
         return ChildResult(proc.returncode or 1, time.perf_counter() - t0, float("nan"))
@@ -619,6 +644,7 @@ def write_plot(summaries: Sequence[Summary], path: Path, size: tuple[float, floa
                                 textcoords="offset points", fontsize=9, fontweight="bold"
                                 ).set_in_layout(False)
         ax.set_xscale("log")
+        ax.margins(x=0.12, y=0.1)
         ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
         ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         ax.xaxis.set_minor_formatter(NullFormatter())
@@ -631,7 +657,7 @@ def write_plot(summaries: Sequence[Summary], path: Path, size: tuple[float, floa
             ax.text(0.5, 0.5, "no points with this metric\n(PSNR needs --stage material/both)",
                     ha="center", va="center", transform=ax.transAxes)
     fig.suptitle("VoxNeRO speed-accuracy trade (medians; bold markers: presets)")
-    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.12, top=0.88, wspace=0.22)
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.12, top=0.88, wspace=0.3)
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
 
@@ -805,9 +831,15 @@ def sweep(tasks: Sequence[Task], out: Path, jobs: int = 1, timeout: float | None
         for t in todo:
             _record(runner(t))
     else:
-        with ThreadPoolExecutor(max_workers=jobs) as pool:
+        pool = ThreadPoolExecutor(max_workers=jobs)
+        try:
             for f in as_completed([pool.submit(runner, t) for t in todo]):
                 _record(f.result())
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            kill_children()  # the workers' children would otherwise run on unobserved
+            raise
+        pool.shutdown()
     if rows:
         write_outputs(out, rows, note)
     return rows

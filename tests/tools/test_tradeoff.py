@@ -9,6 +9,8 @@ import statistics
 import struct
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -308,6 +310,37 @@ def test_run_child_measures_wall_time_and_peak_rss(tmp_path):
     slow = T.run_child([sys.executable, "-c", "import time; time.sleep(30)"], tmp_path / "s.log",
                        timeout=0.5)
     assert slow.rc == 124 and slow.wall_s < 10
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state not in ("Z", "X")
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs Linux /proc")
+def test_kill_children_stops_the_command_too(tmp_path):
+    pid_file = tmp_path / "pid"
+    code = (f"import os, time; open({str(pid_file)!r}, 'w').write(str(os.getpid())); "
+            "time.sleep(60)")
+    res = {}
+    th = threading.Thread(target=lambda: res.update(r=T.run_child([sys.executable, "-c", code],
+                                                                  tmp_path / "k.log")))
+    th.start()
+    t0 = time.time()
+    while not (pid_file.is_file() and pid_file.read_text()) and time.time() - t0 < 20:
+        time.sleep(0.05)
+    pid = int(pid_file.read_text())
+    assert _alive(pid)
+    T.kill_children()
+    th.join(20)
+    assert not th.is_alive() and res["r"].rc != 0 and res["r"].wall_s < 30
+    t0 = time.time()
+    while _alive(pid) and time.time() - t0 < 5:
+        time.sleep(0.05)
+    assert not _alive(pid)  # the command itself, not only the launcher
 
 
 # ------------------------------------------------------------------------------ end to end
