@@ -67,7 +67,7 @@ FIELDS = ["scene", "scene_path", "point", "preset", "overrides", "stage", "repea
 wall time (s) of the timed training command(s); ``shape_s`` / ``material_s`` the wall time of each
 (``shape_s`` is also filled, untimed, for ``--stage material``); ``*_train_s`` the trainers' own
 clocks; ``peak_rss_mib`` the largest peak RSS of the timed children (MiB); ``chamfer`` the NeRO
-Chamfer distance (unit-sphere frame); ``normal_deg`` the mean normal error (degrees); ``psnr`` the
+Chamfer distance (input frame); ``normal_deg`` the mean normal error (degrees); ``psnr`` the
 novel-view PSNR (dB, stage 2 only); ``jobs`` how many runs shared the machine; ``load1`` the
 1-minute load average when the run started."""
 
@@ -544,18 +544,18 @@ def render_markdown(summaries: Sequence[Summary], note: str = "") -> str:
         cfg = " ".join(x for x in (s.preset, s.overrides) if x).replace("|", "\\|")
         cells = [name, s.scene, s.stage, f"`{cfg}`"] + [_cell(m, s.values[m]) for m in METRICS]
         lines.append("| " + " | ".join(cells + [str(s.runs)]) + " |")
-    notes = ["", "Time: wall-clock seconds of the training command(s) the user waits for "
+    notes = ["Time: wall-clock seconds of the training command(s) the user waits for "
              "(`voxnero shape --no-eval`; stage 2 `voxnero material material.eval_views=0`; "
              "both: their sum), median over the runs, one torch thread per run; `voxnero eval` "
-             "is not counted. Chamfer: NeRO protocol (unit-sphere frame); normal error: mean, "
-             "degrees, test views; PSNR: novel views of the exported asset (stage 2). **Bold**: "
-             "presets as shipped."]
+             "is not counted. Chamfer: NeRO protocol (`voxnero eval`, input frame); normal "
+             "error: mean, degrees, test views; PSNR: novel views of the exported asset "
+             "(stage 2). **Bold**: presets as shipped."]
     if any(s.jobs > 1 for s in summaries):
         j = max(s.jobs for s in summaries)
         notes.append(f"Times were taken with `--jobs {j}`: {j} runs at once on the machine.")
     if note:
         notes.append(note)
-    return "\n".join(lines + notes) + "\n"
+    return "\n".join(lines) + "\n\n" + "\n\n".join(notes) + "\n"
 
 
 def parse_markdown(text: str) -> list[dict]:
