@@ -876,7 +876,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="points run at once")
     ap.add_argument("--timeout", type=float, default=None, help="seconds per child command")
     ap.add_argument("--check", default=None, metavar="TABLE",
-                    help="re-run the points of a previous table (.md, README or .csv) and "
+                    help="re-run the points of a previous table (.md, README or .csv) into "
+                         "--out (runs already there are reused: use a fresh folder) and "
                          "compare time and accuracy")
     ap.add_argument("--tolerance", type=float, default=0.2, help="relative, for --check")
     ap.add_argument("--readme", default=None,
@@ -916,6 +917,11 @@ def _main(args: argparse.Namespace) -> int:
             for t in tasks:
                 print(t.key())
             return 0
+        before = {row_key(r) for r in read_csv(out / "tradeoff.csv") if is_done(r)}
+        reused = sum(t.key() in before for t in tasks)
+        if reused:
+            print(f"[tradeoff] --check reuses {reused} finished run(s) already in {out} (an "
+                  "interrupted check continues); pass a fresh --out to measure all anew")
         rows = sweep(tasks, out, args.jobs, args.timeout, note=note)
         results = check(ref, summarise(rows), args.tolerance)
         rep = render_check(results, args.tolerance)
