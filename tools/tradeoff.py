@@ -815,7 +815,7 @@ def sweep(tasks: Sequence[Task], out: Path, jobs: int = 1, timeout: float | None
     todo = [t for t in tasks if t.key() not in done]
     log(f"[tradeoff] {len(tasks)} runs, {len(tasks) - len(todo)} already in {csv_path}, "
         f"{len(todo)} to do ({jobs} at a time)")
-    runner = run or Runner(out, jobs, timeout, log).run
+    runner = run or Runner(out, min(jobs, max(1, len(todo))), timeout, log).run
     lock = threading.Lock()
 
     def _record(row: dict) -> None:
