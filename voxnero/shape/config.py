@@ -40,6 +40,10 @@ class GridConfig:
     (mean squared Laplacian 1.6e3 voxel units, Chamfer 1.1)."""
     feat_res: int = 8
     feat_dim: int = 8
+    res_auto: bool = True
+    """Cap ``res`` (and scale the sample counts) so that a voxel is not finer than one pixel's
+    footprint at the object's distance (:mod:`voxnero.shape.adaptive`); the preset's values are
+    upper bounds. Decision and evidence in ``RUN/decisions.json``."""
 
 
 @dataclass
@@ -75,7 +79,8 @@ class NeusConfig:
 
 @dataclass
 class LightConfig:
-    """Light and material model switches."""
+    """Light and material model switches ("auto" is decided from the data by
+    :mod:`voxnero.shape.adaptive` and recorded in ``RUN/decisions.json``; on/off always win)."""
 
     env_height: int = 64
     """Height of the learnable equirectangular env map (width = 2 × height)."""
@@ -83,14 +88,30 @@ class LightConfig:
     """Initial env radiance (linear)."""
     max_log_radiance: float = 4.0
     indirect: Switch = "auto"
-    """Indirect-light net mixed in by the occlusion probability ("auto" = off for now)."""
+    """Indirect-light net mixed in by the occlusion probability; it follows ``occlusion``
+    unless "off" (there is no occlusion probability to mix it in without the occlusion net)."""
     occlusion: Switch = "auto"
-    """Occlusion net + Open3D ray-cast targets ("auto" = off for now: on the convex gold sphere
-    the targets from a bumpy 96³ mesh reported self-hits and the mixed light hurt)."""
+    """Occlusion net + Open3D ray-cast targets. "auto": off until ``loss.occlusion_start``;
+    then the coarse surface is extracted and the training cameras' reflected view rays are cast
+    at it; on (nets created from that step) iff at least ``self_occlusion_min`` of them hit the
+    object, re-measured every ``loss.occlusion_every`` steps until ``decide_until``."""
+    self_occlusion_min: float = 0.02
+    """Fraction of reflected view rays hitting the object above which "auto" turns the
+    occlusion/indirect model on (``adaptive.SELF_OCCLUSION_MIN``)."""
+    decide_until: float = 0.5
+    """Fraction of ``iters`` after which an "auto" occlusion that measured off stays off."""
+    decide_rays: int = 16384
+    """View rays cast at the surface for the self-occlusion measurement."""
+    occlusion_offset: float = 1.0
+    """Start of the target rays above the surface, in mean edge lengths of the extracted mesh."""
+    occlusion_t_near: float = 2.0
+    """Hits closer than this many mean edge lengths are ignored (the facet the ray left)."""
+    occlusion_smooth: int = 0
+    """Taubin smoothing iterations of the extracted mesh before casting (0 = none)."""
     metallic: Switch = "auto"
     background: Literal["auto", "distant", "alpha"] = "auto"
     """distant: background pixel = env radiance along the ray; alpha: composite on the known
-    background colour of images with alpha."""
+    background colour (images with alpha, or "auto" on images whose border is one colour)."""
     hidden: int = 32
 
 

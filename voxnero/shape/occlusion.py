@@ -57,6 +57,40 @@ def smooth_mesh(mesh: o3d.geometry.TriangleMesh, iterations: int) -> o3d.geometr
     return out
 
 
+def trim_mesh(mesh: o3d.geometry.TriangleMesh, radius: float = 1.0,
+              min_fraction: float = 0.01) -> o3d.geometry.TriangleMesh:
+    """The part of an extracted surface that the renderer can see.
+
+    Marching cubes of the whole grid cube also finds surfaces outside the sampling sphere (the
+    renderer never samples there, so nothing carves them) and small floaters; both would
+    "occlude" reflected rays that the rendered images never saw blocked.
+
+    Args:
+        mesh: Open3D legacy triangle mesh (unit frame).
+        radius: keep triangles whose three vertices lie inside this sphere around the origin
+            (``sampling.radius``).
+        min_fraction: then drop connected components with fewer than this fraction of the
+            remaining triangles.
+
+    Returns:
+        A new mesh (possibly empty).
+    """
+    out = o3d.geometry.TriangleMesh(mesh)
+    v = np.asarray(out.vertices)
+    t = np.asarray(out.triangles)
+    if len(t) == 0:
+        return out
+    inside = np.linalg.norm(v, axis=1) <= radius
+    out.remove_triangles_by_mask(~inside[t].all(1))
+    if len(out.triangles) and min_fraction > 0:
+        labels, counts, _ = out.cluster_connected_triangles()
+        counts = np.asarray(counts)
+        small = counts < min_fraction * counts.sum()
+        out.remove_triangles_by_mask(small[np.asarray(labels)])
+    out.remove_unreferenced_vertices()
+    return out
+
+
 class OcclusionTargets:
     """Ray-cast occlusion targets against a triangle mesh (unit frame).
 

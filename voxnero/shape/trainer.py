@@ -11,11 +11,14 @@ Orchestration only; the physics lives in :mod:`voxnero.shape.renderer` and the l
   ``chamfer`` entries (time-to-Chamfer curves);
 * ``preview/`` — normal map and colour PNGs of a training view at intervals;
 * ``config.yaml`` — the resolved config; ``shape.json`` — decisions (switches) and summary;
+* ``decisions.json`` — every adaptive decision with its setting, reason and evidence
+  (:mod:`voxnero.shape.adaptive`), rewritten whenever one is taken;
 * ``sdf.npz`` — the final SDF grid (unit frame) and ``envmap.exr`` — the learned env map.
 """
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import os
@@ -32,39 +35,72 @@ import torch
 from voxnero.cameras.rays import image_rays, pixel_rays, random_pixels
 from voxnero.config import to_dict
 from voxnero.fields.grid import gaussian_blur3d, resample
-from voxnero.shape import losses
+from voxnero.fields.lights import IndirectLight, OcclusionNet
+from voxnero.shape import adaptive, losses
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.neus import sharpness_schedule
-from voxnero.shape.occlusion import OcclusionTargets
+from voxnero.shape.occlusion import OcclusionTargets, trim_mesh
 from voxnero.shape.renderer import ShapeModel, Switches, render_rays
 
 CKPT = "checkpoint.pt"
 
 
-def resolve_switches(cfg: ShapeConfig, scene: Any) -> Switches:
-    """Decide the "auto" switches from the data (logged and written to ``shape.json``).
+def resolve_switches(cfg: ShapeConfig, scene: Any,
+                     decisions: list[adaptive.Decision] | None = None) -> Switches:
+    """Decide the switches known before training (logged, written to ``decisions.json``).
 
-    * background: images that carried alpha were composited on a known colour → "alpha";
-      otherwise the environment is assumed distant → "distant".
-    * occlusion / indirect: "auto" means **off** for now (measured: the Open3D targets from a
-      bumpy 96³ mesh reported self-hits on the convex gold sphere and the mixed light hurt the
-      reconstruction; docs/STAGE1.md); "on" enables NeRO's full light model.
+    * background: :func:`voxnero.shape.adaptive.decide_background` (alpha or a constant image
+      border → "alpha" with that colour, else "distant").
+    * occlusion / indirect: "on" builds NeRO's full light model from the start, "off" never;
+      "auto" starts **off** and is decided during training from the self-occlusion of the
+      carved surface (:meth:`ShapeTrainer.decide_occlusion`).
     * metallic: "auto" means on (a dielectric is metallic = 0 within the model).
-    A later issue decides these from the data.
+
+    Args:
+        cfg: stage-1 config.
+        scene: the scene (``background``, ``meta``; train images for the border test).
+        decisions: list to append the :class:`~voxnero.shape.adaptive.Decision` records to.
     """
     lc = cfg.light
-
-    def on(v) -> bool:
-        return v not in ("off", False)
-
-    bg = lc.background
-    if bg == "auto":
-        bg = "alpha" if getattr(scene, "background", "") == "alpha" else "distant"
-    color = tuple(getattr(scene, "meta", {}).get("bg_color", (1.0, 1.0, 1.0)))
-    occ = lc.occlusion in ("on", True)  # "auto" = off for now
+    bg, color, dec = adaptive.decide_background(lc.background, scene)
+    occ = lc.occlusion in ("on", True)
     # the indirect light is mixed in by the occlusion probability: it needs the occlusion net
-    return Switches(indirect=occ and on(lc.indirect), occlusion=occ, metallic=on(lc.metallic),
+    ind = occ and adaptive.is_on(lc.indirect)
+    if decisions is not None:
+        decisions.append(dec)
+        if adaptive.is_forced(lc.occlusion):
+            why = f"forced by light.occlusion={lc.occlusion}"
+        else:
+            why = (f"auto: off until step {int(cfg.loss.occlusion_start * cfg.iters)}, then "
+                   "decided from the carved surface")
+        decisions.append(adaptive.Decision("occlusion", occ, lc.occlusion, why))
+        decisions.append(adaptive.Decision(
+            "indirect", ind, lc.indirect,
+            "follows occlusion" if adaptive.is_on(lc.indirect) else "forced off"))
+    return Switches(indirect=ind, occlusion=occ, metallic=adaptive.is_on(lc.metallic),
                     background=bg, bg_color=color)
+
+
+def adapt_config(cfg: ShapeConfig, scene: Any,
+                 decisions: list[adaptive.Decision] | None = None) -> ShapeConfig:
+    """A copy of ``cfg`` with the grid resolutions and sample counts capped by the pixel
+    footprint of the training cameras (``grid.res_auto``; the preset's values are upper bounds).
+    """
+    out = copy.deepcopy(cfg)
+    try:
+        cams = scene.split("train").cameras
+        fp = adaptive.pixel_footprint(cams.K, cams.c2w)
+    except Exception:  # no cameras to measure: keep the preset
+        return out
+    sc = cfg.sampling
+    res, (c, f, k), dec = adaptive.adapt_resolution(cfg.grid.res, sc.coarse, sc.fine,
+                                                    sc.coarse_keep, cfg.grid.bound, fp,
+                                                    enabled=cfg.grid.res_auto)
+    out.grid.res = res
+    out.sampling.coarse, out.sampling.fine, out.sampling.coarse_keep = c, f, k
+    if decisions is not None:
+        decisions.append(dec)
+    return out
 
 
 class _Stop:
@@ -123,7 +159,11 @@ class ShapeTrainer:
             train.images.shape[2]
         self.images = torch.as_tensor(train.images, dtype=torch.float32).reshape(-1, 3) \
             .to(self.device)
-        self.sw = resolve_switches(cfg, scene)
+        self.decisions: list[adaptive.Decision] = []
+        self.cfg = cfg = adapt_config(cfg, scene, self.decisions)
+        self.sw = resolve_switches(cfg, scene, self.decisions)
+        self.occ_pending = cfg.light.occlusion == "auto"
+        """An "auto" occlusion not yet measured on (re-measured until ``decide_until``)."""
         self.model = ShapeModel(cfg, self.sw).to(self.device)
         self.coarse_voxel = self.model.sdf.voxel
         """Voxel of the first grid: smoothing lengths are fixed in space across resolutions."""
@@ -178,7 +218,9 @@ class ShapeTrainer:
         torch.save({"model": self.model.state_dict(), "opt": self.opt.state_dict(),
                     "step": self.step, "train_time": self.train_time,
                     "res": self.model.sdf.res, "gen": self.gen.get_state(),
-                    "config": to_dict(self.cfg), "switches": asdict(self.sw)}, tmp)
+                    "config": to_dict(self.cfg), "switches": asdict(self.sw),
+                    "decisions": [asdict(d) for d in self.decisions],
+                    "occ_pending": self.occ_pending}, tmp)
         os.replace(tmp, path)
         return path
 
@@ -191,6 +233,12 @@ class ShapeTrainer:
         if ck["config"] != to_dict(self.cfg):
             self.log("[shape] note: the config differs from the checkpoint's; resuming anyway")
         self.set_resolution(int(ck["res"]))
+        sw = ck.get("switches", {})
+        if sw.get("occlusion") and self.model.occlusion is None:  # switched on by "auto"
+            self.enable_light_nets(bool(sw.get("indirect")), add_to_optimizer=False)
+        if "decisions" in ck:
+            self.decisions = [adaptive.Decision(**d) for d in ck["decisions"]]
+            self.occ_pending = bool(ck.get("occ_pending", False))
         self.model.load_state_dict(ck["model"])
         self.opt = torch.optim.Adam(self.model.param_groups(self.cfg), betas=(0.9, 0.99),
                                     eps=1e-15)
@@ -214,6 +262,7 @@ class ShapeTrainer:
         lrf = self.lr_factor(self.step)
         for g in self.opt.param_groups:
             g["lr"] = g.setdefault("base_lr", g["lr"]) * lrf
+        self.maybe_decide_occlusion()
         cam, pix = random_pixels(cfg.sampling.rays, self.n_img, self.h, self.w,
                                  generator=self.gen, device=self.device)
         pi = pix.long()
@@ -244,9 +293,11 @@ class ShapeTrainer:
                 self.occ_targets = self._build_occlusion()
             if self.occ_targets is not None:
                 keep = out["acc_hit"] > 0.5
-                tgt = self.occ_targets(out["x"][keep], out["n_hit"][keep], out["refl"][keep])
-                l_occ = losses.occlusion_loss(out["occ"][keep], tgt)
-                loss = loss + lc.occlusion * l_occ
+                tgt, valid = self.occ_targets.test(out["x"][keep], out["n_hit"][keep],
+                                                   out["refl"][keep])
+                if bool(valid.any()):  # only reflected rays that leave the surface (d·n > 0)
+                    l_occ = losses.occlusion_loss(out["occ"][keep][valid], tgt[valid])
+                    loss = loss + lc.occlusion * l_occ
         self.opt.zero_grad(set_to_none=True)
         if not torch.isfinite(loss):
             # never let one bad batch poison the grids (Adam would spread the NaN everywhere)
@@ -258,6 +309,13 @@ class ShapeTrainer:
         g = m.sdf.grid
         if cfg.grid.grad_smooth > 0 and g.grad is not None:
             g.grad[0] = gaussian_blur3d(g.grad[0], cfg.grid.grad_smooth)
+        if not all(torch.isfinite(p.grad).all() for p in m.parameters() if p.grad is not None):
+            # a finite loss can still give a NaN gradient (0 * inf in a saturated exp): skip
+            self.opt.zero_grad(set_to_none=True)
+            m.env.release()
+            self.log(f"[shape] step {self.step}: non-finite gradient, step skipped")
+            return {"loss": float("nan"), "color": float("nan"), "eik": float("nan"),
+                    "occ": 0.0, "nsmooth": 0.0, "psnr": 0.0, "s": s, "res": m.sdf.res}
         self.opt.step()
         m.env.release()
         return {"loss": float(loss.detach()), "color": float(l_col.detach()),
@@ -284,7 +342,84 @@ class ShapeTrainer:
         except Exception as e:  # empty surface early on: no targets this time
             self.log(f"[shape] occlusion targets skipped: {e}")
             return None
-        return OcclusionTargets(mesh, offset=2.0 * self.model.sdf.voxel)
+        lc = self.cfg.light
+        mesh = trim_mesh(mesh, self.cfg.sampling.radius)
+        if len(mesh.triangles) == 0:
+            return None
+        return OcclusionTargets(mesh, offset=lc.occlusion_offset, t_near=lc.occlusion_t_near,
+                                smooth=lc.occlusion_smooth)
+
+    # ------------------------------------------------------------------ adaptive light model
+    def enable_light_nets(self, indirect: bool, add_to_optimizer: bool = True) -> None:
+        """Create the occlusion (and indirect) nets now and give them to the optimiser."""
+        cfg, m = self.cfg, self.model
+        new = []
+        if m.occlusion is None:
+            m.occlusion = OcclusionNet(cfg.grid.feat_dim, cfg.light.hidden).to(self.device)
+            new += list(m.occlusion.parameters())
+        if indirect and m.indirect is None:
+            m.indirect = IndirectLight(cfg.grid.feat_dim, cfg.light.hidden).to(self.device)
+            new += list(m.indirect.parameters())
+        self.sw.occlusion, self.sw.indirect = True, m.indirect is not None
+        if add_to_optimizer and new:
+            self.opt.add_param_group(dict(name="light", params=new, lr=cfg.optim.lr_light))
+
+    def view_rays(self, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """``n`` random training-camera rays (own RNG: the training draws are unchanged)."""
+        gen = torch.Generator(device=self.device).manual_seed(self.cfg.seed + 7919)
+        cam, pix = random_pixels(n, self.n_img, self.h, self.w, generator=gen,
+                                 device=self.device)
+        return pixel_rays(self.cams, cam, pix)
+
+    def maybe_decide_occlusion(self) -> None:
+        """For ``light.occlusion=auto``: at ``loss.occlusion_start`` and then every
+        ``loss.occlusion_every`` steps until ``light.decide_until``, measure the self-occlusion
+        of the carved surface and switch the occlusion/indirect model on if it is above
+        ``light.self_occlusion_min`` (then it stays on)."""
+        cfg = self.cfg
+        start = int(cfg.loss.occlusion_start * cfg.iters)
+        if not self.occ_pending or self.step < start:
+            return
+        if self.step > int(cfg.light.decide_until * cfg.iters):
+            self.occ_pending = False
+            return
+        if (self.step - start) % max(cfg.loss.occlusion_every, 1):
+            return
+        self.decide_occlusion()
+
+    def decide_occlusion(self) -> bool:
+        """Measure the self-occlusion now, record the decision; returns whether it is on."""
+        lc = self.cfg.light
+        t0 = time.perf_counter()
+        try:
+            mesh = self.extract(None, clean=False)
+        except Exception as e:  # nothing carved yet: measure again later
+            self.log(f"[shape] self-occlusion not measured at step {self.step}: {e}")
+            return False
+        o, d = self.view_rays(lc.decide_rays)
+        ev = adaptive.measure_self_occlusion(mesh, o, d, smooth=lc.occlusion_smooth,
+                                             radius=self.cfg.sampling.radius)
+        on, why = adaptive.decide_self_occlusion(ev["reflected_hit_fraction"],
+                                                 ev["reflected_rays"], lc.self_occlusion_min)
+        ev["grid_res"] = self.model.sdf.res
+        ev["seconds"] = round(time.perf_counter() - t0, 3)
+        ind = on and adaptive.is_on(lc.indirect)
+        for name, val, setting in (("occlusion", on, lc.occlusion),
+                                   ("indirect", ind, lc.indirect)):
+            dec = adaptive.Decision(name, val, setting, why if name == "occlusion" else
+                                    ("follows occlusion" if adaptive.is_on(lc.indirect)
+                                     else "forced off"), ev, self.step)
+            self.decisions.append(dec)
+        self.log(self.decisions[-2].line())
+        if on:
+            self.enable_light_nets(ind)
+            self.occ_pending = False
+        self.write_decisions()
+        return on
+
+    def write_decisions(self) -> Path:
+        """Write ``decisions.json`` in the run folder."""
+        return adaptive.write_decisions(self.out / "decisions.json", self.decisions)
 
     def evaluate(self) -> dict[str, float] | None:
         """Chamfer of the current mesh at the test views (scenes with GT), input frame."""
@@ -343,6 +478,7 @@ class ShapeTrainer:
         np.savez_compressed(self.out / "sdf.npz", sdf=g.grid.data[0].cpu().numpy(),
                             bounds=g.bounds.cpu().numpy())
         write_exr(self.out / "envmap.exr", self.model.env.image().detach().cpu().numpy())
+        self.write_decisions()
         summary = {"switches": asdict(self.sw), "steps": self.step,
                    "train_time_s": self.train_time, "grid_res": g.res,
                    "n_vertices": len(mesh.vertices), "n_triangles": len(mesh.triangles)}
@@ -361,6 +497,10 @@ class ShapeTrainer:
         cfg = self.cfg
         self.load_checkpoint()
         self.log(f"[shape] switches: {asdict(self.sw)}")
+        for d in self.decisions:
+            if d.step == 0:
+                self.log(d.line())
+        self.write_decisions()
         bar = tqdm(total=cfg.iters, initial=self.step, disable=not self.progress,
                    dynamic_ncols=True, desc="shape")
         last_ckpt = time.perf_counter()

@@ -1,0 +1,129 @@
+#!/usr/bin/env python
+"""Acceptance check of the adaptive stage-1 light model (issues #6, #7), end to end.
+
+Renders the analytic scenes (``voxnero synth sphere|two_spheres --preset P``), trains stage 1 on
+them adaptively and with the occlusion/indirect model forced, evaluates every mesh
+(``voxnero eval``) and prints a table:
+
+* single sphere (convex): the adaptive run must drop occlusion + indirect and be ≥ 30 % faster
+  than the forced-on run at equal or better Chamfer;
+* two spheres (they reflect each other): the adaptive run must keep them, and forcing them off
+  must hurt Chamfer or PSNR.
+
+Training time is the trainer's own (``shape.json`` ``train_time_s``, evaluation excluded).
+PSNR is the training-batch PSNR (mean of the last 5 log records of ``log.jsonl``): stage-1 runs
+have no test-view renders. Existing run folders are resumed (a finished run is not retrained);
+use a fresh ``--work`` folder to re-measure. Runs are sequential: on a shared machine timings
+move with the load, compare rows measured together.
+
+Example::
+
+    python tools/adaptive_check.py --work runs/adaptive_check
+    python tools/adaptive_check.py --work /tmp/ac --preset tiny --extra   # + the other two runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+RUNS = [("S1", "sphere", "adaptive", []),
+        ("S1", "sphere", "forced_on", ["light.occlusion=on", "light.indirect=on"]),
+        ("S2", "two_spheres", "adaptive", []),
+        ("S2", "two_spheres", "forced_off", ["light.occlusion=off", "light.indirect=off"])]
+EXTRA = [("S1", "sphere", "forced_off", ["light.occlusion=off", "light.indirect=off"]),
+         ("S2", "two_spheres", "forced_on", ["light.occlusion=on", "light.indirect=on"])]
+
+
+def _voxnero(args: list[str], log: Path) -> float:
+    t0 = time.perf_counter()
+    with open(log, "w") as fh:
+        r = subprocess.run([sys.executable, "-m", "voxnero", *args], stdout=fh,
+                           stderr=subprocess.STDOUT)
+    if r.returncode != 0:
+        raise SystemExit(f"voxnero {' '.join(args)} failed (exit {r.returncode}); see {log}")
+    return time.perf_counter() - t0
+
+
+def _row(work: Path, scene: str, label: str) -> dict:
+    run = work / f"{scene}_{label}"
+    summ = json.loads((run / "shape.json").read_text())
+    dec = json.loads((run / "decisions.json").read_text()) if \
+        (run / "decisions.json").is_file() else {}
+    met = json.loads((work / f"E_{scene}_{label}" / "metrics.json").read_text())
+    logs = [json.loads(x) for x in (run / "log.jsonl").read_text().splitlines()]
+    psnrs = [r["psnr"] for r in logs if "psnr" in r][-5:]
+    occ = dec.get("occlusion", {})
+    ev = occ.get("evidence", {})
+    return {"scene": scene, "run": label, "occlusion": summ["switches"]["occlusion"],
+            "indirect": summ["switches"]["indirect"],
+            "decided_at": occ.get("step"), "refl_hit": ev.get("reflected_hit_fraction"),
+            "train_s": round(summ["train_time_s"], 1), "chamfer": met["chamfer"]["cd"],
+            "normal_deg": met.get("normals", {}).get("mean_deg"),
+            "psnr": round(statistics.mean(psnrs), 2) if psnrs else None,
+            "grid": summ["grid_res"], "background": summ["switches"]["background"]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--work", default="runs/adaptive_check", help="folder for scenes and runs")
+    ap.add_argument("--preset", default="preview")
+    ap.add_argument("--extra", action="store_true",
+                    help="also sphere forced off and two_spheres forced on")
+    ap.add_argument("overrides", nargs="*", help="key=value for every shape run (e.g. iters=300)")
+    a = ap.parse_args(argv)
+    work = Path(a.work)
+    work.mkdir(parents=True, exist_ok=True)
+    runs = RUNS + (EXTRA if a.extra else [])
+    for scene, shape in {(s, sh) for s, sh, _, _ in runs}:
+        if not (work / scene / "transforms_train.json").is_file():
+            print(f"synth {shape} -> {work / scene}", flush=True)
+            _voxnero(["synth", shape, "--preset", a.preset, "--out", str(work / scene)],
+                     work / f"synth_{scene}.log")
+    rows = []
+    for scene, _, label, ovr in runs:
+        run, ev = work / f"{scene}_{label}", work / f"E_{scene}_{label}"
+        print(f"shape {scene} {label} {' '.join(ovr)}", flush=True)
+        _voxnero(["shape", str(work / scene), "--preset", a.preset, "--out", str(run),
+                  "--no-progress", *ovr, *a.overrides], work / f"shape_{scene}_{label}.log")
+        _voxnero(["eval", str(run), "--scene", str(work / scene), "--out", str(ev)],
+                 work / f"eval_{scene}_{label}.log")
+        rows.append(_row(work, scene, label))
+        print("  " + json.dumps(rows[-1]), flush=True)
+    cols = ["scene", "run", "occlusion", "indirect", "decided_at", "refl_hit", "train_s",
+            "chamfer", "normal_deg", "psnr", "grid", "background"]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in rows:
+        lines.append("| " + " | ".join(f"{r[c]:.5f}" if c == "chamfer" else
+                                       f"{r[c]:.2f}" if c == "normal_deg" and r[c] else
+                                       str(r[c]) for c in cols) + " |")
+    by = {(r["scene"], r["run"]): r for r in rows}
+    a1, f1 = by[("S1", "adaptive")], by[("S1", "forced_on")]
+    a2, o2 = by[("S2", "adaptive")], by[("S2", "forced_off")]
+    speed = f1["train_s"] / a1["train_s"] - 1.0
+    checks = [
+        ("S1 adaptive drops occlusion + indirect", not a1["occlusion"] and not a1["indirect"]),
+        (f"S1 forced-on costs {speed:+.0%} time vs adaptive (need ≥ +30 %)", speed >= 0.30),
+        (f"S1 Chamfer adaptive {a1['chamfer']:.5f} ≤ forced-on {f1['chamfer']:.5f}",
+         a1["chamfer"] <= f1["chamfer"]),
+        ("S2 adaptive keeps occlusion + indirect", a2["occlusion"] and a2["indirect"]),
+        (f"S2 forced-off worse: Chamfer {o2['chamfer']:.5f} vs {a2['chamfer']:.5f}, PSNR "
+         f"{o2['psnr']} vs {a2['psnr']}",
+         o2["chamfer"] > a2["chamfer"] or (o2["psnr"] or 0) < (a2["psnr"] or 0)),
+    ]
+    lines += [""] + [f"- [{'x' if ok else ' '}] {text}" for text, ok in checks]
+    table = "\n".join(lines)
+    print("\n" + table)
+    (work / "adaptive_check.md").write_text(table + "\n")
+    (work / "adaptive_check.json").write_text(json.dumps({"rows": rows, "checks": [
+        {"check": t, "ok": ok} for t, ok in checks]}, indent=2))
+    return 0 if all(ok for _, ok in checks) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,272 @@
+"""Scene-adaptive modelling decisions of stage 1, from measurable evidence.
+
+Each decision is a pure function of data (images, cameras, a surface) and of the user's switch:
+"on"/"off" (or a fixed value) always wins over "auto". The trainer records every decision with
+its evidence and reason in ``RUN/decisions.json`` and logs it.
+
+* **background** — images that carried alpha were composited on a known colour, and images whose
+  border is one constant colour (a studio backdrop, a constant environment) show nothing of the
+  environment: no background model, the pixel is that colour ("alpha"). Otherwise the background
+  is the distant environment, drawn by the env map ("distant"). Evidence: the transparent
+  fraction (alpha < 0.5) or the fraction of border pixels within a tolerance of the median
+  border colour. A *near* background (an outer NeRF field) is not built; its detection is
+  recorded as not implemented.
+* **grid resolution and sample counts** — a voxel finer than the footprint of one pixel at the
+  object's distance is not constrained by any photo. The footprint is ``distance / focal`` (unit
+  frame length per pixel, median over the training cameras, at the distance of the unit frame's
+  origin, where the normalisation puts the object); the finest useful grid has voxel ≥ footprint,
+  ``res_max = floor(2·bound / footprint) + 1``. The preset's resolutions are upper bounds; sample
+  counts scale with the finest resolution kept.
+* **self-occlusion** (NeRO's occlusion net + indirect light) — after the coarse grid has carved,
+  the surface is extracted, the training cameras' view rays are cast at it and reflected about
+  the facet normals; if fewer than :data:`SELF_OCCLUSION_MIN` of the reflected rays hit the
+  object again, the object (nearly) never sees itself in reflection and ``L = L_direct`` is
+  exact: the occlusion and indirect nets stay off.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+SELF_OCCLUSION_MIN = 0.02
+"""Fraction of the cameras' reflected view rays that must hit the object itself for the
+occlusion/indirect light model to be switched on. Below it, at most 2 % of the specular light
+reaching the cameras comes from the object: less than the env map's own error."""
+BORDER_TOL = 0.02
+"""Linear-radiance tolerance (absolute, plus the same relative) of a "constant" border pixel."""
+BORDER_CONSTANT_MIN = 0.98
+"""Fraction of border pixels that must match the border colour for a constant background."""
+BORDER_WIDTH = 2
+"""Width in pixels of the image border examined."""
+
+
+@dataclass
+class Decision:
+    """One recorded decision.
+
+    Attributes:
+        name: what is decided ("background", "grid_res", "occlusion", ...).
+        value: the decided value (JSON-serialisable).
+        setting: the user's switch value ("auto", "on", "off", ...).
+        reason: one line for a human.
+        evidence: the measured numbers the decision rests on.
+        step: training step at which it was taken (0 = before training).
+    """
+
+    name: str
+    value: Any
+    setting: Any
+    reason: str
+    evidence: dict[str, Any] = field(default_factory=dict)
+    step: int = 0
+
+    def line(self) -> str:
+        """One log line."""
+        return f"[shape] decision {self.name} = {self.value} ({self.reason})"
+
+
+def is_on(v: Any) -> bool:
+    """A switch that is not off ("auto", "on", True)."""
+    return v not in ("off", False)
+
+
+def is_forced(v: Any) -> bool:
+    """A switch the user set explicitly ("on"/"off"/bool), i.e. not "auto"."""
+    return v != "auto"
+
+
+# ---------------------------------------------------------------------------------- background
+def border_evidence(images: torch.Tensor | np.ndarray, width: int = BORDER_WIDTH,
+                    tol: float = BORDER_TOL) -> dict[str, Any]:
+    """How constant the image borders are.
+
+    Args:
+        images: ``(N, H, W, 3)`` linear RGB.
+        width: border width in pixels.
+        tol: tolerance; a pixel p matches colour c if ``max|p − c| ≤ tol·(1 + max c)``.
+
+    Returns:
+        ``{"border_color": [r, g, b] (median of all border pixels), "border_constant_fraction":
+        fraction of border pixels that match it, "border_pixels": count}``.
+    """
+    im = torch.as_tensor(images, dtype=torch.float32)
+    w = max(1, min(width, im.shape[1] // 2, im.shape[2] // 2))
+    ring = torch.cat([im[:, :w].reshape(-1, 3), im[:, -w:].reshape(-1, 3),
+                      im[:, w:-w, :w].reshape(-1, 3), im[:, w:-w, -w:].reshape(-1, 3)])
+    c = ring.median(0).values
+    match = (ring - c).abs().amax(-1) <= tol * (1.0 + float(c.max()))
+    return {"border_color": [round(float(v), 6) for v in c],
+            "border_constant_fraction": float(match.float().mean()),
+            "border_pixels": int(ring.shape[0])}
+
+
+def decide_background(setting: str, scene: Any) -> tuple[str, tuple[float, float, float],
+                                                          Decision]:
+    """Background model from the data (see the module docstring).
+
+    Args:
+        setting: ``light.background`` ("auto", "distant" or "alpha").
+        scene: a scene with ``background`` ("alpha" if images had alpha), ``meta`` (``bg_color``)
+            and, for the border test, ``split("train").images (N, H, W, 3)`` linear.
+
+    Returns:
+        ``(mode "distant"|"alpha", bg_color (r, g, b) linear, Decision)``.
+    """
+    color = tuple(float(v) for v in getattr(scene, "meta", {}).get("bg_color", (1.0, 1.0, 1.0)))
+    ev: dict[str, Any] = {"near_background": "not implemented (no outer field is built)"}
+    train = None
+    try:
+        train = scene.split("train")
+    except Exception:  # a bare scene description: no images to look at
+        train = None
+    alpha = getattr(train, "alpha", None) if train is not None else None
+    if alpha is not None:
+        ev["transparent_fraction"] = float((torch.as_tensor(alpha) < 0.5).float().mean())
+    if getattr(scene, "background", "") != "alpha" and train is not None \
+            and getattr(train, "images", None) is not None:
+        ev.update(border_evidence(train.images))
+    if setting != "auto":
+        mode = setting
+        reason = f"forced by light.background={setting}"
+    elif getattr(scene, "background", "") == "alpha":
+        mode, reason = "alpha", f"images carry alpha, composited on the known colour {color}"
+    elif ev.get("border_constant_fraction", 0.0) >= BORDER_CONSTANT_MIN:
+        mode = "alpha"
+        color = tuple(ev["border_color"])
+        reason = (f"{ev['border_constant_fraction']:.1%} of border pixels have one colour "
+                  f"(≥ {BORDER_CONSTANT_MIN:.0%}): constant background, no background model")
+    else:
+        mode = "distant"
+        frac = ev.get("border_constant_fraction")
+        reason = ("no alpha" + (f", border constant on only {frac:.1%}" if frac is not None
+                                else "") + ": distant environment drawn by the env map")
+    return mode, color, Decision("background", mode, setting, reason, ev)
+
+
+# ---------------------------------------------------------------------------------- resolution
+def pixel_footprint(K: torch.Tensor, c2w: torch.Tensor) -> float:
+    """Unit-frame length covered by one pixel at the distance of the origin (the object).
+
+    Args:
+        K: ``(N, 3, 3)`` intrinsics in pixels; c2w: ``(N, 4, 4)`` camera-to-world (unit frame).
+
+    Returns:
+        Median over cameras of ``|camera centre| / focal`` with focal = mean of fx, fy.
+    """
+    dist = c2w[:, :3, 3].double().norm(dim=-1)
+    focal = 0.5 * (K[:, 0, 0] + K[:, 1, 1]).double()
+    return float((dist / focal).median())
+
+
+def max_useful_res(footprint: float, bound: float) -> int:
+    """Finest grid resolution whose voxel ``2·bound/(res − 1)`` is not below ``footprint``."""
+    return int(math.floor(2.0 * bound / footprint)) + 1
+
+
+def adapt_resolution(res: list[int], coarse: int, fine: int, coarse_keep: int, bound: float,
+                     footprint: float, enabled: bool = True
+                     ) -> tuple[list[int], tuple[int, int, int], Decision]:
+    """Cap the grid resolutions and scale the sample counts by the pixel footprint.
+
+    Args:
+        res: the preset's SDF resolutions (upper bounds), coarse to fine.
+        coarse, fine, coarse_keep: the preset's sample counts (upper bounds).
+        bound: grid half-size (unit frame).
+        footprint: :func:`pixel_footprint`.
+        enabled: ``grid.res_auto``; False keeps the preset's values (recorded as forced).
+
+    Returns:
+        ``(resolutions, (coarse, fine, coarse_keep), Decision)``.
+    """
+    cap = max_useful_res(footprint, bound)
+    ev = {"pixel_footprint": round(footprint, 6), "res_max": cap,
+          "voxel_at_preset": round(2 * bound / (max(res) - 1), 6), "preset_res": list(res),
+          "preset_samples": [coarse, fine, coarse_keep]}
+    if not enabled:
+        return list(res), (coarse, fine, coarse_keep), Decision(
+            "grid_res", list(res), False, "forced by grid.res_auto=false", ev)
+    new = [min(int(r), cap) for r in res]
+    f = max(new) / max(res)
+    c = min(coarse, max(16, math.ceil(coarse * f)))
+    fi = min(fine, max(8, math.ceil(fine * f)))
+    k = min(coarse_keep, c, max(8, math.ceil(coarse_keep * f)))
+    if new == list(res):
+        reason = (f"voxel {ev['voxel_at_preset']:.4f} ≥ pixel footprint {footprint:.4f}: "
+                  "preset kept")
+    else:
+        reason = (f"pixel footprint {footprint:.4f} allows at most {cap}^3: grid {res} -> {new},"
+                  f" samples {coarse}/{fine}/{coarse_keep} -> {c}/{fi}/{k}")
+    return new, (c, fi, k), Decision("grid_res", {"res": new, "samples": [c, fi, k]}, True,
+                                     reason, ev)
+
+
+# ------------------------------------------------------------------------------ self-occlusion
+def decide_self_occlusion(fraction: float, n_rays: int, threshold: float = SELF_OCCLUSION_MIN
+                          ) -> tuple[bool, str]:
+    """Switch the occlusion/indirect model on iff the reflected rays see the object enough.
+
+    Args:
+        fraction: fraction of the cameras' reflected rays that hit the object
+            (:func:`voxnero.shape.occlusion.reflected_hit_fraction`).
+        n_rays: how many reflected rays were tested.
+        threshold: :data:`SELF_OCCLUSION_MIN`.
+
+    Returns:
+        ``(on, reason)``.
+    """
+    if n_rays == 0:
+        return False, "no view ray hit the surface yet: nothing measured"
+    if fraction >= threshold:
+        return True, (f"{fraction:.1%} of {n_rays} reflected view rays hit the object "
+                      f"(≥ {threshold:.0%}): self-occlusion, occlusion + indirect on")
+    return False, (f"{fraction:.2%} of {n_rays} reflected view rays hit the object "
+                   f"(< {threshold:.0%}): no self-occlusion, direct light only")
+
+
+def measure_self_occlusion(mesh: Any, origins: torch.Tensor, dirs: torch.Tensor,
+                           smooth: int = 0, radius: float = 1.0) -> dict[str, Any]:
+    """Evidence for :func:`decide_self_occlusion` on a surface (unit frame).
+
+    Args:
+        mesh: Open3D legacy triangle mesh (e.g. marching cubes of the coarse grid); trimmed to
+            the sampling sphere and its large components first
+            (:func:`voxnero.shape.occlusion.trim_mesh`).
+        origins: ``(R, 3)`` training-camera ray origins; dirs: ``(R, 3)`` unit directions.
+        smooth: Taubin iterations applied to the mesh first.
+        radius: the renderer's sampling sphere (``sampling.radius``).
+
+    Returns:
+        ``{"reflected_hit_fraction", "reflected_rays", "view_rays", "mesh_edge"}``.
+    """
+    from voxnero.shape.occlusion import mean_edge_length, reflected_hit_fraction, trim_mesh
+
+    mesh = trim_mesh(mesh, radius)
+    o = origins.detach().cpu().double().numpy()
+    d = dirs.detach().cpu().double().numpy()
+    frac, k = reflected_hit_fraction(mesh, o, d, smooth=smooth)
+    return {"reflected_hit_fraction": round(frac, 6), "reflected_rays": k,
+            "view_rays": int(o.shape[0]), "mesh_edge": round(mean_edge_length(mesh), 6)}
+
+
+# ---------------------------------------------------------------------------------- records
+def write_decisions(path: str | Path, decisions: list[Decision]) -> Path:
+    """Write ``decisions.json``: ``{name: {value, setting, reason, evidence, step}}``; a name
+    decided several times keeps its latest entry and the earlier ones under ``history``."""
+    out: dict[str, Any] = {}
+    for d in decisions:
+        rec = asdict(d)
+        name = rec.pop("name")
+        if name in out:
+            hist = out[name].pop("history", [])
+            rec["history"] = hist + [out[name]]
+        out[name] = rec
+    path = Path(path)
+    path.write_text(json.dumps(out, indent=2, default=str))
+    return path
