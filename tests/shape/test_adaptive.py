@@ -209,7 +209,7 @@ def _tiny_trainer(tmp_path, light: dict, **kw):
                                   "grid": {"res": [16, 16], "upsample_at": [0.5]},
                                   "sampling": {"rays": 256},
                                   "loss": {"occlusion_start": 0.25, "occlusion_every": 5},
-                                  "light": {"env_height": 8, **light}, **kw})
+                                  "light": {"env_height": 8, "decide_at": 0.25, **light}, **kw})
     logs: list[str] = []
     tr = ShapeTrainer(cfg, _scene(img, cams=_rig(6, 32, seed=3)), tmp_path, progress=False,
                       log=logs.append)
@@ -220,7 +220,7 @@ def test_auto_switches_nets_on_from_a_self_occluding_surface(tmp_path, monkeypat
     tr, logs = _tiny_trainer(tmp_path, {})
     assert tr.model.occlusion is None and tr.occ_pending
     monkeypatch.setattr(tr, "extract", lambda res=None, clean=True: _sph(CA, RA) + _sph(CB, RB))
-    for _ in range(5):  # steps 0..4: before occlusion_start (step 5)
+    for _ in range(5):  # steps 0..4: before decide_at (step 5)
         tr.train_step()
         tr.step += 1
     assert tr.model.occlusion is None
@@ -259,7 +259,7 @@ def test_auto_stays_off_on_a_convex_surface_and_off_never_measures(tmp_path, mon
     dec = json.loads((tmp_path / "a" / "decisions.json").read_text())
     measured = [dec["occlusion"]] + dec["occlusion"].get("history", [])
     steps = sorted(d["step"] for d in measured if "reflected_hit_fraction" in d["evidence"])
-    assert steps == [5, 10]  # occlusion_start, then every occlusion_every until decide_until
+    assert steps == [5, 10]  # decide_at, then every occlusion_every until decide_until
 
     tr, _ = _tiny_trainer(tmp_path / "b", {"occlusion": "off"})
     called = []

@@ -71,7 +71,7 @@ def resolve_switches(cfg: ShapeConfig, scene: Any,
         if adaptive.is_forced(lc.occlusion):
             why = f"forced by light.occlusion={lc.occlusion}"
         else:
-            why = (f"auto: off until step {int(cfg.loss.occlusion_start * cfg.iters)}, then "
+            why = (f"auto: off until step {int(cfg.light.decide_at * cfg.iters)}, then "
                    "decided from the carved surface")
         decisions.append(adaptive.Decision("occlusion", occ, lc.occlusion, why))
         decisions.append(adaptive.Decision(
@@ -372,12 +372,12 @@ class ShapeTrainer:
         return pixel_rays(self.cams, cam, pix)
 
     def maybe_decide_occlusion(self) -> None:
-        """For ``light.occlusion=auto``: at ``loss.occlusion_start`` and then every
+        """For ``light.occlusion=auto``: at ``light.decide_at`` and then every
         ``loss.occlusion_every`` steps until ``light.decide_until``, measure the self-occlusion
         of the carved surface and switch the occlusion/indirect model on if it is above
         ``light.self_occlusion_min`` (then it stays on)."""
         cfg = self.cfg
-        start = int(cfg.loss.occlusion_start * cfg.iters)
+        start = int(cfg.light.decide_at * cfg.iters)
         if not self.occ_pending or self.step < start:
             return
         if self.step > int(cfg.light.decide_until * cfg.iters):
