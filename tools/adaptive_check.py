@@ -10,6 +10,9 @@ them adaptively and with the occlusion/indirect model forced, evaluates every me
 * two spheres (they reflect each other): the adaptive run must keep them, and forcing them off
   must hurt Chamfer or PSNR.
 
+``refl_hit`` is the self-occlusion the adaptive run measured on its carved surface (fraction of
+reflected view rays that hit the object), ``refl_hit_gt`` the same on the ground-truth mesh.
+
 Training time is the trainer's own (``shape.json`` ``train_time_s``, evaluation excluded).
 PSNR is the training-batch PSNR (mean of the last 5 log records of ``log.jsonl``): stage-1 runs
 have no test-view renders. Existing run folders are resumed (a finished run is not retrained);
@@ -69,6 +72,30 @@ def _row(work: Path, scene: str, label: str) -> dict:
             "grid": summ["grid_res"], "background": summ["switches"]["background"]}
 
 
+def gt_reflected_fraction(scene_dir: Path, n: int = 16384) -> float | None:
+    """Self-occlusion of the ground-truth mesh (``gt/mesh.ply``) seen by the training cameras:
+    what the adaptive measurement would find on a perfect reconstruction."""
+    import numpy as np
+    import open3d as o3d
+    import torch
+
+    from voxnero.cameras.rays import pixel_rays, random_pixels
+    from voxnero.data.detect import load_scene
+    from voxnero.shape.occlusion import reflected_hit_fraction
+
+    path = scene_dir / "gt" / "mesh.ply"
+    if not path.is_file():
+        return None
+    sc = load_scene(scene_dir, splits=("train",))
+    mesh = o3d.io.read_triangle_mesh(str(path))
+    mesh.vertices = o3d.utility.Vector3dVector(sc.norm.to_unit(np.asarray(mesh.vertices)))
+    tr = sc.split("train")
+    n_img, h, w = tr.images.shape[:3]
+    cam, pix = random_pixels(n, n_img, h, w, generator=torch.Generator().manual_seed(0))
+    o, d = pixel_rays(tr.cameras, cam, pix)
+    return round(reflected_hit_fraction(mesh, o.double().numpy(), d.double().numpy())[0], 6)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--work", default="runs/adaptive_check", help="folder for scenes and runs")
@@ -85,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"synth {shape} -> {work / scene}", flush=True)
             _voxnero(["synth", shape, "--preset", a.preset, "--out", str(work / scene)],
                      work / f"synth_{scene}.log")
+    gt_frac = {s: gt_reflected_fraction(work / s) for s in {r[0] for r in runs}}
     rows = []
     for scene, _, label, ovr in runs:
         run, ev = work / f"{scene}_{label}", work / f"E_{scene}_{label}"
@@ -93,9 +121,10 @@ def main(argv: list[str] | None = None) -> int:
                   "--no-progress", *ovr, *a.overrides], work / f"shape_{scene}_{label}.log")
         _voxnero(["eval", str(run), "--scene", str(work / scene), "--out", str(ev)],
                  work / f"eval_{scene}_{label}.log")
-        rows.append(_row(work, scene, label))
+        rows.append({**_row(work, scene, label), "refl_hit_gt": gt_frac[scene]})
         print("  " + json.dumps(rows[-1]), flush=True)
-    cols = ["scene", "run", "occlusion", "indirect", "decided_at", "refl_hit", "train_s",
+    cols = ["scene", "run", "occlusion", "indirect", "decided_at", "refl_hit", "refl_hit_gt",
+            "train_s",
             "chamfer", "normal_deg", "psnr", "grid", "background"]
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
