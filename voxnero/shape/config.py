@@ -154,6 +154,10 @@ class OptimConfig:
     decay: float = 0.1
     """Final learning rate as a fraction of the initial (cosine decay over ``iters``)."""
     warmup: int = 50
+    lr_sdf_per_voxel: bool = True
+    """Scale the SDF learning rate with the voxel size at each upsampling (×48/96 for
+    48³ → 96³). Adam steps every voxel by about lr, so a fixed lr leaves bumps of the same height
+    on a finer grid, i.e. steeper ones: normal noise. Measured on sphere_gold (docs/STAGE1.md)."""
 
 
 @dataclass

@@ -208,6 +208,13 @@ class ShapeTrainer:
             if group.get("name") == "sdf":
                 self.opt.state.pop(old, None)
                 group["params"] = [self.model.sdf.grid]
+                if self.cfg.optim.lr_sdf_per_voxel:
+                    # Adam moves every voxel by ~lr per step whatever its gradient: keep the
+                    # step a fixed fraction of the voxel so that the bumps it leaves (slope ≈
+                    # step / voxel) do not grow when the voxels shrink
+                    base = group.get("base_lr", group["lr"])
+                    group["base_lr"] = base * old.shape[-1] / res
+                    group["lr"] = group["lr"] * old.shape[-1] / res
         self.log(f"[shape] step {self.step}: SDF grid {old.shape[-1]}^3 -> {res}^3")
 
     # ------------------------------------------------------------------ checkpoints
