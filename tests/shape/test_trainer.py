@@ -144,3 +144,22 @@ def test_resolve_switches_decisions():
     assert not sw({"occlusion": "on", "indirect": "off"}).indirect
     assert not sw({"indirect": "on"}).indirect  # no occlusion net to mix it in
     assert not sw({"metallic": False}).metallic  # YAML reads off as false
+
+
+@pytest.mark.parametrize("per_voxel", [True, False])
+def test_sdf_lr_scales_with_voxel_at_upsampling(scene, tmp_path, per_voxel):
+    """32³ → 48³: with ``optim.lr_sdf_per_voxel`` the SDF group's lr (and base lr the schedule
+    multiplies) shrinks by 32/48; without it, and for every other group, it is unchanged."""
+    cfg = _cfg(4)
+    cfg.optim.lr_sdf_per_voxel = per_voxel
+    tr = ShapeTrainer(cfg, scene, tmp_path / "run", progress=False, log=lambda m: None)
+    tr.train_step()  # sets base_lr on every group
+    before = {g["name"]: (g["base_lr"], g["lr"]) for g in tr.opt.param_groups}
+    tr.set_resolution(48)
+    f = 32 / 48 if per_voxel else 1.0
+    for g in tr.opt.param_groups:
+        b, lr = before[g["name"]]
+        k = f if g["name"] == "sdf" else 1.0
+        assert g["base_lr"] == pytest.approx(b * k) and g["lr"] == pytest.approx(lr * k)
+    assert tr.model.sdf.grid is tr.opt.param_groups[[g["name"] for g in
+                                                       tr.opt.param_groups].index("sdf")]["params"][0]
