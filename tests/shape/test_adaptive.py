@@ -206,7 +206,8 @@ def _tiny_trainer(tmp_path, light: dict, **kw):
 
     img = np.random.default_rng(0).random((6, 32, 32, 3)).astype(np.float32)
     cfg = from_dict(ShapeConfig, {"iters": 20, "eval_every_s": 0, "preview_every": 0,
-                                  "grid": {"res": [16, 16], "upsample_at": [0.5]},
+                                  "grid": {"res": [16, 16], "upsample_at": [0.5],
+                                           "init_candidates": []},
                                   "sampling": {"rays": 256},
                                   "loss": {"occlusion_start": 0.25, "occlusion_every": 5},
                                   "light": {"env_height": 8, "decide_at": 0.25, **light}, **kw})

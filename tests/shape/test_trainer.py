@@ -43,7 +43,7 @@ def scene(tmp_path_factory):
 def _cfg(iters: int) -> ShapeConfig:
     return from_dict(ShapeConfig, {
         "iters": iters, "eval_every_s": 0, "preview_every": 0, "mesh_res": 96,
-        "grid": {"res": [32, 48], "upsample_at": [0.5]},
+        "grid": {"res": [32, 48], "upsample_at": [0.5], "init_candidates": []},
         "sampling": {"rays": 1024},
         "light": {"env_height": 32},
     })
@@ -163,3 +163,47 @@ def test_sdf_lr_scales_with_voxel_at_upsampling(scene, tmp_path, per_voxel):
         assert g["base_lr"] == pytest.approx(b * k) and g["lr"] == pytest.approx(lr * k)
     assert tr.model.sdf.grid is tr.opt.param_groups[[g["name"] for g in
                                                        tr.opt.param_groups].index("sdf")]["params"][0]
+
+
+@pytest.mark.parametrize("first,other", [(0.7, 0.15), (0.15, 0.7)])
+def test_first_look_keeps_the_better_start(scene, tmp_path, first, other):
+    """Two starts, one a sphere far inside the object: the first look keeps the one that fits the
+    photos (whichever is listed first), records why, and the run still ends at ``iters``."""
+    import json
+
+    cfg = _cfg(60)
+    cfg.grid.init_radius, cfg.grid.init_candidates, cfg.grid.init_trial = first, [other], 0.5
+    cfg.light.occlusion = "off"
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
+    tr.run()
+    assert tr.step == 60
+    dec = json.loads((tmp_path / "decisions.json").read_text())["init_radius"]
+    assert dec["value"] == 0.7 and dec["step"] == 30, dec
+    ev = dec["evidence"]
+    assert ev["radii"] == [first, other] and ev["trial_steps"] == 30
+    p07, p015 = (ev["psnr"][0], ev["psnr"][1]) if first == 0.7 else (ev["psnr"][1], ev["psnr"][0])
+    assert p07 > p015 + 1.0, ev  # dB: the small sphere leaves most of the object unexplained
+    trial = [json.loads(l) for l in (tmp_path / "log.jsonl").read_text().splitlines()
+             if '"trial"' in l]
+    assert {r["trial"] for r in trial} == {first, other}
+
+
+def test_interrupt_during_first_look_restarts_it(scene, tmp_path):
+    cfg = _cfg(20)
+    cfg.grid.init_candidates = [0.5]
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
+    orig, calls = tr.train_step, {"n": 0}
+
+    def flaky():
+        calls["n"] += 1
+        if calls["n"] == 8:  # second start of the first look (6 steps each)
+            raise KeyboardInterrupt
+        return orig()
+
+    tr.train_step = flaky
+    with pytest.raises(KeyboardInterrupt):
+        tr.run()
+    assert not (tmp_path / CKPT).exists()  # nothing half-chosen is saved
+    tr2 = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
+    tr2.run()
+    assert tr2.step == 20 and (tmp_path / "mesh.ply").is_file()

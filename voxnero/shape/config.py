@@ -29,6 +29,23 @@ class GridConfig:
     """Radius of the initial SDF sphere: start around the object and carve inward, but leave
     background visible in every view (the unit sphere is the largest one every view sees whole):
     from 0.95 nothing was carved in 90 s on sphere_gold, the env map had no background to learn."""
+    init_candidates: list[float] = field(default_factory=lambda: [0.5])
+    """Other initial radii tried against ``init_radius`` in a first look: each trains for
+    ``init_trial`` of the run from the same batches, and the one with the best photometric fit
+    (mean training PSNR over the trial's last third, by at least ``init_margin``) goes on;
+    [] = ``init_radius`` only.
+    A mirror barely moves from where it starts: it can reflect the environment so that a shell of
+    the initial sphere looks like background (a mirror sphere of radius 0.45 off the centre kept
+    one from 0.7: Chamfer 0.25; from 0.5: 0.006), and it barely grows because its rim reflects
+    what lies behind it (sphere_gold, radius 0.8, from 0.5: 0.070; from 0.7: 0.011). The fit
+    ranked the starts as the Chamfer did on every scene measured (docs/STAGE1.md)."""
+    init_margin: float = 1.0
+    """dB by which another start's fit must beat ``init_radius``'s to replace it. Early fits
+    of starts that end far apart can be within a few tenths of a dB either way (sphere_gold:
+    19.93 dB from both 0.7 and 0.5 after 30 % of the preview), so only a clear win counts."""
+    init_trial: float = 0.3
+    """Fraction of ``iters`` each initial radius trains for in the first look (its steps count in
+    the run's time; an interrupted first look restarts on the next run)."""
     normals: Literal["analytic", "fd"] = "analytic"
     fd_step: float = 1.0
     """Central-difference half-step in voxels (normals: fd)."""
@@ -195,5 +212,13 @@ class ShapeConfig:
             raise ConfigError(f"shape.grid.res={g.res}: every resolution must be >= 4")
         if self.sampling.coarse_keep > self.sampling.coarse:
             raise ConfigError("shape.sampling.coarse_keep must be <= shape.sampling.coarse")
+        if g.init_candidates and not 0.0 < g.init_trial < 1.0:
+            raise ConfigError(f"shape.grid.init_trial={g.init_trial} must be in (0, 1)",
+                              fix="give the fraction of iters each initial radius trains for")
+        if g.init_candidates and self.light.occlusion == "auto" and \
+                g.init_trial >= self.light.decide_at:
+            raise ConfigError(f"shape.grid.init_trial={g.init_trial} must end before "
+                              f"shape.light.decide_at={self.light.decide_at}",
+                              fix="shorten the first look or decide the occlusion later")
         if self.iters < 1:
             raise ConfigError("shape.iters must be >= 1")

@@ -25,7 +25,7 @@ import os
 import signal
 import time
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -330,6 +330,74 @@ class ShapeTrainer:
                 "nsmooth": float(l_ns.detach()),
                 "psnr": losses.psnr(out["rgb"], target), "s": s, "res": m.sdf.res}
 
+    # ------------------------------------------------------------------ first look
+    def _fresh_model(self, radius: float) -> None:
+        """Rebuild model, optimiser and batch RNG as at step 0, the SDF a sphere of ``radius``."""
+        cfg = self.cfg
+        grid = replace(cfg.grid, init_radius=radius)
+        torch.manual_seed(cfg.seed)  # same feature-grid initialisation for every start
+        self.model = ShapeModel(replace(cfg, grid=grid), self.sw).to(self.device)
+        self.opt = torch.optim.Adam(self.model.param_groups(cfg), betas=(0.9, 0.99), eps=1e-15)
+        self.gen = torch.Generator(device=self.device).manual_seed(cfg.seed)
+        self.step = 0
+        self.occ_targets = None
+
+    def choose_init(self, fh, bar, stop: Any = None) -> None:
+        """First look: train each initial radius (``grid.init_radius`` and
+        ``grid.init_candidates``) for ``grid.init_trial`` of the run on the same batches and go
+        on with the best photometric fit (mean training PSNR over the trial's last third; another
+        start must beat ``init_radius``'s by ``grid.init_margin`` dB).
+        Recorded as the "init_radius" decision; the steps count in ``train_time`` and go to
+        ``log.jsonl`` with a ``trial`` field."""
+        g = self.cfg.grid
+        radii = [g.init_radius] + [r for r in g.init_candidates if r != g.init_radius]
+        n = max(1, int(g.init_trial * self.cfg.iters))
+        scores: list[float] = []
+        best: tuple[float, int, dict] | None = None
+        for k, radius in enumerate(radii):
+            self._fresh_model(radius)
+            psnrs = []
+            bar.reset(total=self.cfg.iters)
+            bar.set_description(f"shape (start r={radius:g})")
+            for _ in range(n):
+                t0 = time.perf_counter()
+                rec = self.train_step()
+                self.step += 1
+                self.train_time += time.perf_counter() - t0
+                bar.update(1)
+                psnrs.append(rec["psnr"])
+                if stop is not None and stop.flag:
+                    raise KeyboardInterrupt
+                if self.step % max(1, self.cfg.iters // 200) == 0:
+                    self._log_line(fh, {"time": round(self.train_time, 2), "step": self.step,
+                                        "trial": radius, **rec})
+            tail = [p for p in psnrs[-max(1, n // 3):] if math.isfinite(p)]
+            score = float(np.mean(tail)) if tail else -math.inf
+            scores.append(round(score, 3))
+            self.log(f"[shape] start r={radius:g}: training PSNR {score:.2f} dB after {n} steps")
+            margin = 0.0 if best is None or best[1] != 0 else g.init_margin
+            if best is None or score > best[0] + margin:
+                best = (score, k, {"model": self.model, "opt": self.opt, "gen": self.gen,
+                                   "occ": self.occ_targets})
+        assert best is not None
+        score, k, st = best
+        self.model, self.opt, self.gen = st["model"], st["opt"], st["gen"]
+        self.occ_targets = st["occ"]
+        self.step = n
+        bar.set_description("shape")
+        bar.reset(total=self.cfg.iters)
+        bar.update(n)
+        dec = adaptive.Decision(
+            "init_radius", radii[k], [g.init_radius] + list(g.init_candidates),
+            f"best training PSNR of {len(radii)} starts after {n} steps (another start must "
+            f"beat r={g.init_radius:g} by {g.init_margin:g} dB): "
+            + ", ".join(f"r={r:g}: {p:.2f} dB" for r, p in zip(radii, scores, strict=True)),
+            {"radii": radii, "psnr": scores, "trial_steps": n,
+             "seconds": round(self.train_time, 2)}, n)
+        self.decisions.append(dec)
+        self.log(dec.line())
+        self.write_decisions()
+
     # ------------------------------------------------------------------ surfaces
     @torch.no_grad()
     def extract(self, res: int | None = None, clean: bool = True):
@@ -513,6 +581,14 @@ class ShapeTrainer:
         last_ckpt = time.perf_counter()
         log_every = max(1, cfg.iters // 200)
         with open(self.out / "log.jsonl", "a") as fh, _Stop() as stop:
+            if self.step == 0 and cfg.grid.init_candidates:
+                try:
+                    self.choose_init(fh, bar, stop)
+                except KeyboardInterrupt:
+                    bar.close()
+                    self.log("[shape] stopped during the first look (initial radius); it "
+                             "restarts when the same command is re-run")
+                    raise
             try:
                 while self.step < cfg.iters:
                     t0 = time.perf_counter()
