@@ -330,6 +330,15 @@ class ShapeTrainer:
                 "nsmooth": float(l_ns.detach()),
                 "psnr": losses.psnr(out["rgb"], target), "s": s, "res": m.sdf.res}
 
+    def _timed_step(self, bar) -> dict[str, float]:
+        """:meth:`train_step`, then advance the step, the training clock and the bar."""
+        t0 = time.perf_counter()
+        rec = self.train_step()
+        self.step += 1
+        self.train_time += time.perf_counter() - t0
+        bar.update(1)
+        return rec
+
     # ------------------------------------------------------------------ first look
     def _fresh_model(self, radius: float) -> None:
         """Rebuild model, optimiser and batch RNG as at step 0, the SDF a sphere of ``radius``."""
@@ -360,11 +369,7 @@ class ShapeTrainer:
             bar.reset(total=self.cfg.iters)
             bar.set_description(f"shape (start r={radius:g})")
             for _ in range(n):
-                t0 = time.perf_counter()
-                rec = self.train_step()
-                self.step += 1
-                self.train_time += time.perf_counter() - t0
-                bar.update(1)
+                rec = self._timed_step(bar)
                 psnrs.append(rec["psnr"])
                 if stop is not None and stop.flag:
                     raise KeyboardInterrupt
@@ -591,11 +596,7 @@ class ShapeTrainer:
                     raise
             try:
                 while self.step < cfg.iters:
-                    t0 = time.perf_counter()
-                    rec = self.train_step()
-                    self.step += 1
-                    self.train_time += time.perf_counter() - t0
-                    bar.update(1)
+                    rec = self._timed_step(bar)
                     if self.step % log_every == 0 or self.step == cfg.iters:
                         bar.set_postfix(loss=f"{rec['loss']:.4f}", psnr=f"{rec['psnr']:.1f}",
                                         res=rec["res"])
