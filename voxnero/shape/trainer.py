@@ -167,7 +167,7 @@ class ShapeTrainer:
         self.model = ShapeModel(cfg, self.sw).to(self.device)
         self.coarse_voxel = self.model.sdf.voxel
         """Voxel of the first grid: smoothing lengths are fixed in space across resolutions."""
-        self.opt = torch.optim.Adam(self.model.param_groups(cfg), betas=(0.9, 0.99), eps=1e-15)
+        self.opt = self._optimizer()
         self.step = 0
         self.train_time = 0.0
         self.occ_targets: OcclusionTargets | None = None
@@ -177,6 +177,10 @@ class ShapeTrainer:
             if te.depth is not None and te.masks is not None:
                 self.eval_split = te
         self._last_eval = 0.0
+
+    def _optimizer(self) -> torch.optim.Adam:
+        """Adam over the model's parameter groups (one per learning rate)."""
+        return torch.optim.Adam(self.model.param_groups(self.cfg), betas=(0.9, 0.99), eps=1e-15)
 
     # ------------------------------------------------------------------ schedules
     def res_at(self, step: int) -> int:
@@ -247,8 +251,7 @@ class ShapeTrainer:
             self.decisions = [adaptive.Decision(**d) for d in ck["decisions"]]
             self.occ_pending = bool(ck.get("occ_pending", False))
         self.model.load_state_dict(ck["model"])
-        self.opt = torch.optim.Adam(self.model.param_groups(self.cfg), betas=(0.9, 0.99),
-                                    eps=1e-15)
+        self.opt = self._optimizer()
         self.opt.load_state_dict(ck["opt"])
         self.step = int(ck["step"])
         self.train_time = float(ck["train_time"])
@@ -346,7 +349,7 @@ class ShapeTrainer:
         grid = replace(cfg.grid, init_radius=radius)
         torch.manual_seed(cfg.seed)  # same feature-grid initialisation for every start
         self.model = ShapeModel(replace(cfg, grid=grid), self.sw).to(self.device)
-        self.opt = torch.optim.Adam(self.model.param_groups(cfg), betas=(0.9, 0.99), eps=1e-15)
+        self.opt = self._optimizer()
         self.gen = torch.Generator(device=self.device).manual_seed(cfg.seed)
         self.step = 0
         self.occ_targets = None
