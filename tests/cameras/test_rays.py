@@ -11,7 +11,13 @@ import pytest
 import torch
 
 from voxnero.cameras.cameras import Cameras, opengl_to_opencv
-from voxnero.cameras.rays import image_rays, pixel_centers, pixel_rays, random_pixels
+from voxnero.cameras.rays import (
+    image_rays,
+    pixel_centers,
+    pixel_rays,
+    pixel_samples,
+    random_pixels,
+)
 
 DEV = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 
@@ -177,3 +183,15 @@ def test_rays_on_device_match_cpu(device):
     assert di.device.type == device and di.shape == (15, 20, 3)
     uv, _ = on.project(o + 2.0 * d, 0)
     assert uv.device.type == device
+
+
+def test_pixel_samples_are_stratified_inside_their_pixel():
+    s = pixel_samples(5, 7, 9, torch.Generator().manual_seed(0), window=(1, 2, 3, 4))
+    assert s.shape == (3, 4, 9, 2)
+    col = torch.arange(2, 6).view(1, 4, 1).float()
+    row = torch.arange(1, 4).view(3, 1, 1).float()
+    fx, fy = s[..., 0] - col, s[..., 1] - row
+    assert bool(((fx >= 0) & (fx < 1) & (fy >= 0) & (fy < 1)).all())
+    # one sample in each cell of the 3 x 3 grid of every pixel
+    cell = (fy * 3).floor() * 3 + (fx * 3).floor()
+    assert bool((cell.sort(-1).values == torch.arange(9).float()).all())

@@ -1,5 +1,5 @@
-"""Relight renderer: against Mitsuba's ground truth, a mirror furnace, stage 2's estimator,
-env-map orientation and the pixel sampler."""
+"""Relight renderer: against Mitsuba's ground truth, a mirror furnace, stage 2's estimator
+and env-map orientation (its pixel sampler is tested in tests/cameras/test_rays.py)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from voxnero.io.exr import read_exr
 from voxnero.io.images import read_image
 from voxnero.relight.asset import Asset, UniformMaterial, load_asset
 from voxnero.relight.cameras import orbit_cameras, scene_cameras
-from voxnero.relight.render import RelightConfig, Relighter, load_env, pixel_samples
+from voxnero.relight.render import RelightConfig, Relighter, load_env
 from voxnero.render.envmap import EnvMap
 
 DATA = Path("/work/shared/data")
@@ -150,15 +150,3 @@ def test_yaw_turns_the_map_like_a_column_roll():
     torch.testing.assert_close(a["rgb"][bg], b["rgb"][bg], atol=1e-5, rtol=1e-5)
     c = Relighter(asset, EnvMap(img), cfg).render(cams, 0, torch.Generator().manual_seed(5))
     assert (c["rgb"][bg] - a["rgb"][bg]).abs().mean() > 0.05  # the yaw did something
-
-
-def test_pixel_samples_are_stratified_inside_their_pixel():
-    s = pixel_samples(5, 7, 9, torch.Generator().manual_seed(0), window=(1, 2, 3, 4))
-    assert s.shape == (3, 4, 9, 2)
-    col = torch.arange(2, 6).view(1, 4, 1).float()
-    row = torch.arange(1, 4).view(3, 1, 1).float()
-    fx, fy = s[..., 0] - col, s[..., 1] - row
-    assert bool(((fx >= 0) & (fx < 1) & (fy >= 0) & (fy < 1)).all())
-    # one sample in each cell of the 3 x 3 grid of every pixel
-    cell = (fy * 3).floor() * 3 + (fx * 3).floor()
-    assert bool((cell.sort(-1).values == torch.arange(9).float()).all())

@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 import torch
 
-from voxnero.cameras.rays import pixel_rays
+from voxnero.cameras.rays import pixel_rays, pixel_samples
 from voxnero.render.brdf import brdf_eval
 from voxnero.render.envmap import EnvMap, pixel_dirs
 from voxnero.synth.camera_rig import make_cameras
 from voxnero.synth.envmaps import constant_envmap
 from voxnero.synth.materials import Material, MaterialTable
-from voxnero.synth.pathtrace import pixel_samples, trace_paths
+from voxnero.synth.pathtrace import trace_paths
 from voxnero.synth.shapes import Sphere, Union
 from voxnero.synth.views import render_views
 
@@ -38,7 +38,8 @@ def _samples(material: Material, env: EnvMap, res: int = 32, spp: int = 16, brdf
     (P, spp) and (optionally) the cosine n·v (P, spp) at each primary hit."""
     cams = make_cameras(np.array([[0.3, -0.8, 0.52]]) / np.linalg.norm([0.3, -0.8, 0.52]), res)
     gen = torch.Generator().manual_seed(seed)
-    pix, pid = pixel_samples(res, res, spp, gen)
+    pix = pixel_samples(res, res, spp, gen).reshape(-1, 2)
+    pid = torch.arange(res * res).repeat_interleave(spp)
     o, d = pixel_rays(cams, torch.zeros(len(pix), dtype=torch.long), pix)
     geo = Union([Sphere((0.0, 0.0, 0.0), 0.8)])
     L, t, obj = trace_paths(geo, MaterialTable.from_materials([material]), env, o, d,

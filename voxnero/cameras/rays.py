@@ -1,4 +1,5 @@
-"""Camera rays for pixel batches and whole images, and random pixel sampling.
+"""Camera rays for pixel batches and whole images, and pixel sampling (random pixels, jittered
+points inside every pixel for box-filtered renders).
 
 Pixel coordinates are continuous ``(x = column, y = row)`` in the frame of ``K``: pixel
 (column i, row j) covers ``[i, i+1] x [j, j+1]`` and its centre is ``(i + 0.5, j + 0.5)``.
@@ -11,7 +12,10 @@ at depth 1, written out so that no per-ray ``(3, 3)`` copy is needed), then rota
 
 from __future__ import annotations
 
+import math
+
 import torch
+from torch import Tensor
 
 from voxnero.cameras.cameras import Cameras
 
@@ -54,6 +58,36 @@ def pixel_rays(cameras: Cameras, cam_idx: torch.Tensor, pix: torch.Tensor
     c2w = cameras.c2w[cam_idx]
     dirs = torch.einsum("mij,mj->mi", c2w[:, :3, :3], d_cam)
     return c2w[:, :3, 3], torch.nn.functional.normalize(dirs, dim=-1)
+
+
+def pixel_samples(height: int, width: int, spp: int, generator: torch.Generator | None = None,
+                  window: tuple[int, int, int, int] | None = None) -> Tensor:
+    """Stratified jittered sample positions in every pixel.
+
+    With ``spp = k²`` each pixel is split into a k × k grid with one uniform point per cell;
+    otherwise ``spp`` independent uniform points.
+
+    Args:
+        height, width: image size.
+        spp: samples per pixel.
+        generator: random stream.
+        window: (row0, col0, rows, cols) sub-image to sample (default the whole image).
+
+    Returns:
+        (rows, cols, spp, 2) continuous pixel coordinates (x = column, y = row); pixel (i, j)
+        covers [i, i+1] × [j, j+1].
+    """
+    r0, c0, h, w = window if window is not None else (0, 0, height, width)
+    k = int(round(math.sqrt(spp)))
+    u = torch.rand(h, w, spp, 2, generator=generator)
+    if k * k == spp:
+        g = torch.arange(k, dtype=torch.float32)
+        gy, gx = torch.meshgrid(g, g, indexing="ij")
+        cell = torch.stack([gx.reshape(-1), gy.reshape(-1)], -1)  # (spp, 2)
+        u = (cell + u) / k
+    jj = torch.arange(r0, r0 + h, dtype=torch.float32)[:, None, None]
+    ii = torch.arange(c0, c0 + w, dtype=torch.float32)[None, :, None]
+    return torch.stack([ii + u[..., 0], jj + u[..., 1]], -1)
 
 
 def pixel_centers(height: int, width: int, downscale: int = 1,

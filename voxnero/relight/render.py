@@ -26,13 +26,13 @@ like the dev data.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from voxnero.cameras.rays import pixel_samples
 from voxnero.errors import ConfigError
 
 
@@ -124,36 +124,6 @@ def up_axis_name(up: np.ndarray) -> str:
         raise ConfigError(f"up axis {np.asarray(up).tolist()} is not axis-aligned",
                           fix="relighting supports scenes whose up axis is ±Z, ±Y or +X")
     return _UP_NAMES[key]
-
-
-def pixel_samples(height: int, width: int, spp: int, generator: torch.Generator | None = None,
-                  window: tuple[int, int, int, int] | None = None) -> Tensor:
-    """Stratified jittered sample positions in every pixel.
-
-    With ``spp = k²`` each pixel is split into a k × k grid with one uniform point per cell;
-    otherwise ``spp`` independent uniform points.
-
-    Args:
-        height, width: image size.
-        spp: samples per pixel.
-        generator: random stream.
-        window: (row0, col0, rows, cols) sub-image to sample (default the whole image).
-
-    Returns:
-        (rows, cols, spp, 2) continuous pixel coordinates (x = column, y = row); pixel (i, j)
-        covers [i, i+1] × [j, j+1].
-    """
-    r0, c0, h, w = window if window is not None else (0, 0, height, width)
-    k = int(round(math.sqrt(spp)))
-    u = torch.rand(h, w, spp, 2, generator=generator)
-    if k * k == spp:
-        g = torch.arange(k, dtype=torch.float32)
-        gy, gx = torch.meshgrid(g, g, indexing="ij")
-        cell = torch.stack([gx.reshape(-1), gy.reshape(-1)], -1)  # (spp, 2)
-        u = (cell + u) / k
-    jj = torch.arange(r0, r0 + h, dtype=torch.float32)[:, None, None]
-    ii = torch.arange(c0, c0 + w, dtype=torch.float32)[None, :, None]
-    return torch.stack([ii + u[..., 0], jj + u[..., 1]], -1)
 
 
 def world_frame_map(env, height: int | None = None) -> Tensor:

@@ -156,24 +156,3 @@ def trace_paths(geometry: Union, materials: MaterialTable, env, o: torch.Tensor,
     return L, first_t, first_obj
 
 
-def pixel_samples(height: int, width: int, spp: int, generator: torch.Generator | None = None
-                  ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Jittered sub-pixel positions: ``spp`` per pixel, stratified when spp is a square.
-
-    Returns:
-        (pix (H·W·spp, 2) continuous [x = col, y = row] pixel coordinates, pixel index
-        (H·W·spp,) long into the row-major H·W image).
-    """
-    s = int(round(spp ** 0.5))
-    jj, ii = torch.meshgrid(torch.arange(height), torch.arange(width), indexing="ij")
-    base = torch.stack([ii, jj], -1).reshape(-1, 1, 2).float()  # (HW, 1, 2)
-    jit = torch.rand(height * width, spp, 2, generator=generator)
-    if s * s == spp:
-        sy, sx = torch.meshgrid(torch.arange(s), torch.arange(s), indexing="ij")
-        cell = torch.stack([sx, sy], -1).reshape(1, spp, 2).float()
-        jit = (cell + jit) / s
-    pix = (base + jit).reshape(-1, 2)
-    pid = torch.arange(height * width).repeat_interleave(spp)
-    return pix, pid
-
-

@@ -12,7 +12,7 @@ import torch
 
 from voxnero.synth.aov import N_FEATURES, aov_samples, finish_aov
 from voxnero.synth.materials import MaterialTable
-from voxnero.synth.pathtrace import pixel_samples, trace_paths
+from voxnero.synth.pathtrace import trace_paths
 from voxnero.synth.shapes import Union
 
 
@@ -35,11 +35,12 @@ def render_views(geometry: Union, materials: MaterialTable, env, cameras,
         (radiance (V, H, W, 3) float32 linear, maps) with maps as in
         :func:`voxnero.synth.aov.finish_aov`, each reshaped to (V, H, W, ...).
     """
-    from voxnero.cameras.rays import pixel_rays
+    from voxnero.cameras.rays import pixel_rays, pixel_samples
 
     H, W = cameras.height, cameras.width
     V, P = len(indices), H * W
-    pix, pid = pixel_samples(H, W, spp, generator)
+    pix = pixel_samples(H, W, spp, generator).reshape(-1, 2)
+    pid = torch.arange(H * W).repeat_interleave(spp)
     n = pix.shape[0]
     dev = cameras.device
     rgb = torch.zeros(V * P, 3, device=dev)
