@@ -164,7 +164,8 @@ def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]
     visibility = bool(dec.get("visibility_casts", True))
     spp = Strategies(*(int(x) for x in cfg.material_spp))
     res = evaluate_scene(scene_path, geom, asset.field, env, spp, indirect, visibility,
-                         views=cfg.material_views, out_dir=None, log=lambda _: None)
+                         views=cfg.material_views, out_dir=None, log=lambda _: None,
+                         subpixels=cfg.material_subpixels)
     if not res:
         return {"novel_view": "not evaluated: the scene has no test split"}, {}
     res.update(asset=str(run / "model.glb"), indirect=indirect, visibility=visibility)
@@ -173,7 +174,7 @@ def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]
     if split is not None and split.images is not None:
         for i in res["views"][:cfg.images]:
             r = render_view(geom, asset.field, env, split.cameras, i, spp, indirect, visibility,
-                            generator=gen)
+                            generator=gen, subpixels=cfg.material_subpixels)
             images[f"render_{split.names[i]}"] = (linear_to_srgb(r["rgb"].clamp(0, 1)),
                                                   linear_to_srgb(split.images[i].clamp(0, 1)))
     return res, images

@@ -160,7 +160,8 @@ def run(args: argparse.Namespace) -> int:
         spp = Strategies(cfg.render.spp_cos * s, cfg.render.spp_ggx * s, cfg.render.spp_env * s)
         metrics.update(evaluate_scene(scene_path, trainer.geom, trainer.field, env, spp,
                                       trainer.use_indirect, trainer.visibility,
-                                      cfg.eval_views, out / "eval"))
+                                      cfg.eval_views, out / "eval",
+                                      subpixels=cfg.render.eval_subpixels))
         times["eval_s"] = time.perf_counter() - t3
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1, default=str))
     w = vertex_areas(geom.vertices.numpy().astype(np.float64), geom.triangles.numpy())

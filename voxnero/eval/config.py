@@ -32,6 +32,9 @@ class EvalConfig:
     material_spp: list[int] = field(default_factory=lambda: [8, 8, 8])
     """Stage-2 runs: samples per pixel of the renders (cosine, GGX, env-map strategies);
     ``voxnero material`` uses ``render.spp_* × render.eval_scale`` (24 each by default)."""
+    material_subpixels: int = 4
+    """Stage-2 runs: stratified points per pixel averaged in linear radiance, the box filter the
+    photos were made with (the samples above are split among them; 1 = pixel centres)."""
 
     def validate(self) -> None:
         if self.voxel < 0:
@@ -41,6 +44,8 @@ class EvalConfig:
         if self.material_views == 0 or self.material_views < -1:
             raise ConfigError(f"eval.material_views={self.material_views} must be >= 1 or -1 "
                               "(all test views)")
+        if self.material_subpixels < 1:
+            raise ConfigError(f"eval.material_subpixels={self.material_subpixels} must be >= 1")
         sp = list(self.material_spp)
         if len(sp) != 3 or min(sp) < 0 or sum(sp) < 1:
             raise ConfigError(f"eval.material_spp={self.material_spp} must be three counts "

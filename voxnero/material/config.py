@@ -61,6 +61,9 @@ class RenderConfig:
     """Env-map importance samples per pixel and estimate (training)."""
     eval_scale: int = 6
     """Evaluation renders use ``eval_scale`` times the training samples."""
+    eval_subpixels: int = 4
+    """Evaluation renders average this many stratified points per pixel (the box filter of the
+    photos; the samples are split among them, 1 = pixel centres)."""
     decorrelate: bool = True
     """Loss on two independent estimates per pixel, (p1 − t)(p2 − t), instead of (p − t)²:
     no Monte Carlo variance term in the expected loss (costs twice the samples)."""
@@ -109,6 +112,9 @@ class MaterialConfig:
         if min(r.spp_cos, r.spp_ggx, r.spp_env) < 0 or r.spp_cos + r.spp_ggx + r.spp_env < 1:
             raise ConfigError("material.render.spp_* must be >= 0 with at least one sample",
                               fix="e.g. render.spp_cos=8 render.spp_ggx=8")
+        if r.eval_scale < 1 or r.eval_subpixels < 1:
+            raise ConfigError(f"material.render.eval_scale={r.eval_scale} and "
+                              f"render.eval_subpixels={r.eval_subpixels} must be >= 1")
         if not self.light.env_height or any(h < 4 for h in self.light.env_height):
             raise ConfigError(f"material.light.env_height={self.light.env_height} needs "
                               "heights >= 4", fix="e.g. light.env_height=[64,128]")

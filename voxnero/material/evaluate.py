@@ -1,9 +1,15 @@
 """Stage-2 renders of whole views and their metrics against held-out data.
 
-A view is rendered at pixel centres: pixels whose ray hits the mesh are shaded with the Monte
-Carlo estimator (:func:`voxnero.material.render.shade`, ``eval_scale`` × the training samples),
-the others show the env map along the ray. Metrics (``voxnero.eval.images``), in sRGB of the
-clipped linear render, as the 8-bit images were made:
+A pixel's value is the box-filtered average of the radiance over its footprint, as the data's
+renderer makes it (shared data README: Mitsuba ``box`` filter): each pixel is rendered at
+``subpixels`` stratified jittered points (:func:`voxnero.cameras.rays.pixel_samples`), and
+the Monte Carlo samples
+(:func:`voxnero.material.render.shade`, ``eval_scale`` × the training samples) are split among
+them, so the cost does not grow. Points that hit the mesh are shaded, the others show the env map
+along the ray. Material maps and the hit mask are read at pixel centres.
+
+Metrics (``voxnero.eval.images``), in sRGB of the clipped linear render, as the 8-bit images
+were made:
 
 * novel views (``test``): PSNR / SSIM of the whole image and PSNR of fully covered pixels
   (mask = 1, evaluation-only masks);
@@ -31,45 +37,65 @@ from voxnero.render.envmap import envmap_lookup
 
 def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: int,
                 spp: Strategies, indirect: bool = True, visibility: bool = True,
-                chunk: int = 2048, generator: torch.Generator | None = None
-                ) -> dict[str, torch.Tensor]:
-    """Render one view (linear radiance) and the material maps at its pixel centres.
+                chunk: int = 2048, generator: torch.Generator | None = None,
+                subpixels: int = 4) -> dict[str, torch.Tensor]:
+    """Render one view (linear radiance, box-filtered over each pixel) and its material maps.
 
     Args:
         geom: mesh (unit frame); field: material field; env_image: (H, W, 3) linear map.
         cameras: the views (unit frame); index: which one.
-        spp: samples per strategy; indirect: use the split-sum indirect estimate for secondary
-            hits; visibility: cast secondary rays.
+        spp: samples per strategy per pixel, split evenly among the subpixels (each gets
+            ``ceil(count / subpixels)``); indirect: use the split-sum indirect estimate for
+            secondary hits; visibility: cast secondary rays.
         chunk: object pixels shaded at once.
+        generator: torch generator (jitter and Monte Carlo).
+        subpixels: points per pixel averaged in linear radiance (1: the pixel centre only).
 
     Returns:
-        dict of ``rgb`` (H, W, 3) linear, ``hit`` (H, W) bool, ``albedo`` (H, W, 3),
-        ``metallic`` (H, W), ``roughness`` (H, W) (0 on background).
+        dict of ``rgb`` (H, W, 3) linear, ``hit`` (H, W) bool (pixel centre hits the mesh),
+        ``albedo`` (H, W, 3), ``metallic`` (H, W), ``roughness`` (H, W) (at pixel centres, 0 on
+        background).
     """
-    from voxnero.cameras.rays import image_rays
+    from voxnero.cameras.rays import pixel_centers, pixel_rays, pixel_samples
 
-    o, d = image_rays(cameras, index)
-    H, W = d.shape[:2]
+    if subpixels < 1:
+        raise ValueError(f"subpixels must be >= 1, got {subpixels}")
+    H, W = int(cameras.height), int(cameras.width)
     dev = geom.device
-    o, d = o.reshape(-1, 3).to(dev), d.reshape(-1, 3).to(dev)
     env_image = env_image.to(dev)
-    _, tri, bary = geom.cast(o, d)
-    hit = tri >= 0
-    rgb = envmap_lookup(env_image, d)
-    alb = torch.zeros(H * W, 3, device=dev)
-    met = torch.zeros(H * W, device=dev)
-    rough = torch.zeros(H * W, device=dev)
+    centre = pixel_centers(H, W).reshape(-1, 2)
+    cam = torch.full((H * W,), int(index), dtype=torch.long)
     ind = IndirectLight(env_image) if indirect else None
     sampler = env_sampler(env_image) if spp.env else None
-    idx = hit.nonzero()[:, 0]
+    sub = Strategies(*(-(-c // subpixels) for c in (spp.cos, spp.ggx, spp.env)))
+    points = (centre[:, None] if subpixels == 1 else
+              pixel_samples(H, W, subpixels, generator).reshape(H * W, subpixels, 2))
+    rgb = torch.zeros(H * W, 3, device=dev)
     with torch.no_grad():
+        for k in range(subpixels):
+            o, d = pixel_rays(cameras, cam, points[:, k])
+            o, d = o.to(dev), d.to(dev)
+            _, tri, bary = geom.cast(o, d)
+            c = envmap_lookup(env_image, d)
+            idx = (tri >= 0).nonzero()[:, 0]
+            for s in range(0, idx.shape[0], chunk):
+                j = idx[s:s + chunk]
+                t, b = tri[j], bary[j]
+                x, n = geom.points_at(t, b), geom.normals_at(t, b)
+                c[j] = shade(geom, field, env_image, t, b, x, n, -d[j], sub, ind, sampler,
+                             visibility, generator)
+            rgb += c / subpixels
+        o, d = pixel_rays(cameras, cam, centre)
+        _, tri, bary = geom.cast(o.to(dev), d.to(dev))
+        hit = tri >= 0
+        alb = torch.zeros(H * W, 3, device=dev)
+        met = torch.zeros(H * W, device=dev)
+        rough = torch.zeros(H * W, device=dev)
+        idx = hit.nonzero()[:, 0]
         for s in range(0, idx.shape[0], chunk):
             j = idx[s:s + chunk]
             t, b = tri[j], bary[j]
-            x, n = geom.points_at(t, b), geom.normals_at(t, b)
-            rgb[j] = shade(geom, field, env_image, t, b, x, n, -d[j], spp, ind, sampler,
-                           visibility, generator)
-            a, m, r = field(t, b, x)
+            a, m, r = field(t, b, geom.points_at(t, b))
             alb[j], met[j], rough[j] = a, m[:, 0], r[:, 0]
     out = {"rgb": rgb.view(H, W, 3), "hit": hit.view(H, W), "albedo": alb.view(H, W, 3),
            "metallic": met.view(H, W), "roughness": rough.view(H, W)}
@@ -84,7 +110,7 @@ def _mean(xs: list[float]) -> float:
 def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: torch.Tensor,
                    spp: Strategies, indirect: bool, visibility: bool = True,
                    views: int = -1, out_dir: str | Path | None = None,
-                   log=print) -> dict[str, Any]:
+                   log=print, subpixels: int = 4) -> dict[str, Any]:
     """Novel-view, relighting and material-map metrics on a scene's test views.
 
     Args:
@@ -96,6 +122,7 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
         indirect, visibility: as in :func:`render_view`.
         views: number of test views (evenly spread; -1 = all).
         out_dir: where to write comparison PNGs (``eval/``), or None.
+        subpixels: points per pixel of the box filter (:func:`render_view`).
 
     Returns:
         Metrics dict (JSON-friendly); empty if the scene has no test split.
@@ -122,13 +149,13 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
     def srgb(x):
         return linear_to_srgb(x.clamp(0, 1))
 
-    res: dict[str, Any] = {"views": pick, "spp": vars(spp)}
+    res: dict[str, Any] = {"views": pick, "spp": vars(spp), "subpixels": subpixels}
     nv = {"psnr": [], "ssim": [], "psnr_object": []}
     mat = {"metallic_mae": [], "roughness_mae": [], "albedo_psnr": []}
     renders = {}
     for i in pick:
         r = render_view(geom, field, env_image, test.cameras, i, spp, indirect, visibility,
-                        generator=gen)
+                        generator=gen, subpixels=subpixels)
         renders[i] = r
         gt = test.images[i]
         pred = srgb(r["rgb"])
@@ -164,7 +191,7 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
         vals = {"psnr": [], "ssim": []}
         for i in pick:
             r = render_view(geom, field, env_new, sp.cameras, i, spp, indirect, visibility,
-                            generator=gen)
+                            generator=gen, subpixels=subpixels)
             full = (test.masks[i] >= 1 - 0.5 / 255) if test.masks is not None else r["hit"]
             full = full & r["hit"]
             if not full.any():
