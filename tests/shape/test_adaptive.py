@@ -5,10 +5,12 @@
 * resolution: the pixel footprint is ``distance / focal`` (closed form); a 64² rig caps a
   96³ grid, a 128² rig keeps it; ``grid.res_auto=false`` keeps the preset.
 * self-occlusion: a convex sphere seen by cameras all around → off; two spheres that see each
-  other → on, with the fraction equal to an analytic ray–sphere computation; floaters outside
-  the sampling sphere are not counted.
-* trainer: "auto" switches the nets on mid-run from a measured surface (optimiser group added,
-  decisions.json written with reasons, checkpoint resumes with the nets); "off" never measures.
+  other → on, with the fraction equal to an analytic ray–sphere computation; the same pair with
+  its gap filled by a neck still → on, a bumpy sphere → off (the threshold's two sides);
+  floaters outside the sampling sphere are not counted.
+* trainer: "auto" starts with the nets and keeps them on a self-occluding surface (decisions.json
+  written with reasons, checkpoint resumes with the nets) or drops them on a convex one
+  (optimiser group removed, resume without them); "off" never measures.
 """
 
 from __future__ import annotations
@@ -176,7 +178,59 @@ def test_self_occlusion_sphere_off_two_spheres_on():
     assert two["reflected_hit_fraction"] == pytest.approx(truth, abs=0.006)
     on, why = adaptive.decide_self_occlusion(two["reflected_hit_fraction"],
                                              two["reflected_rays"])
-    assert on and "≥ 2%" in why
+    assert on and "≥ 0.5%" in why
+
+
+def _marching_cubes(sdf, res: int = 96) -> o3d.geometry.TriangleMesh:
+    """Triangle mesh of the zero set of a numpy SDF ``sdf((..., 3)) -> (...)`` over [-1, 1]³."""
+    from skimage.measure import marching_cubes
+
+    g = np.linspace(-1.0, 1.0, res)
+    P = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1)
+    v, f, _, _ = marching_cubes(sdf(P), 0.0, spacing=(g[1] - g[0],) * 3)
+    return o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v - 1.0),
+                                     o3d.utility.Vector3iVector(f[:, ::-1].copy()))
+
+
+def test_threshold_sits_between_a_bumpy_sphere_and_a_necked_pair():
+    """Why ``SELF_OCCLUSION_MIN`` is 0.5 %: the measurement runs on a partly carved surface.
+    Two spheres whose 0.03 gap training first fills with a neck (a smooth union, k = 0.3) measure
+    about a quarter of the true pair's self-occlusion but stay above the threshold; a sphere
+    with bumps far worse than any converged reconstruction (mean normal error ~12°) stays
+    below it."""
+    cams = _rig(32, 96, seed=3)
+    o, d = _rays(cams)
+
+    def smin(a, b, k):
+        h = np.clip(0.5 + 0.5 * (b - a) / k, 0.0, 1.0)
+        return b * (1 - h) + a * h - k * h * (1 - h)
+
+    necked = _marching_cubes(lambda P: smin(np.linalg.norm(P - CA, axis=-1) - RA,
+                                            np.linalg.norm(P - CB, axis=-1) - RB, 0.3))
+    neck = adaptive.measure_self_occlusion(necked, o, d)
+    truth = _analytic_fraction(o.double().numpy(), d.double().numpy())
+    assert neck["reflected_hit_fraction"] < 0.4 * truth  # the neck hides most of it
+    assert adaptive.decide_self_occlusion(neck["reflected_hit_fraction"],
+                                          neck["reflected_rays"])[0] is True
+
+    waves = np.random.default_rng(0).normal(size=(12, 3))
+    waves /= np.linalg.norm(waves, axis=1, keepdims=True)
+
+    def bumpy(P):
+        r = np.linalg.norm(P, axis=-1)
+        u = P / np.maximum(r[..., None], 1e-9)
+        bumps = sum(np.cos(25 * (u @ w) + i) for i, w in enumerate(waves)) / 12**0.5
+        return r - 0.585 - 0.01 * bumps
+
+    sph = _marching_cubes(bumpy)
+    sph.compute_vertex_normals()
+    v, n = np.asarray(sph.vertices), np.asarray(sph.vertex_normals)
+    err = np.degrees(np.arccos(np.clip(np.abs((n * v).sum(1)) / np.linalg.norm(v, axis=1), 0, 1)))
+    assert err.mean() > 8.0  # much bumpier than a reconstruction (1-5 deg)
+    ev = adaptive.measure_self_occlusion(sph, o, d)
+    assert 0.0 < ev["reflected_hit_fraction"] < adaptive.SELF_OCCLUSION_MIN
+    assert adaptive.decide_self_occlusion(ev["reflected_hit_fraction"],
+                                          ev["reflected_rays"])[0] is False
 
 
 def test_floaters_outside_the_sampling_sphere_do_not_count():
@@ -193,8 +247,8 @@ def test_floaters_outside_the_sampling_sphere_do_not_count():
 
 
 def test_decision_threshold_and_forcing():
-    assert adaptive.decide_self_occlusion(0.0199, 1000)[0] is False
-    assert adaptive.decide_self_occlusion(0.02, 1000)[0] is True
+    assert adaptive.decide_self_occlusion(0.0049, 1000)[0] is False
+    assert adaptive.decide_self_occlusion(0.005, 1000)[0] is True
     assert adaptive.decide_self_occlusion(0.5, 0)[0] is False  # nothing measured
     assert adaptive.is_forced("on") and adaptive.is_forced(False)
     assert not adaptive.is_forced("auto")
@@ -217,17 +271,19 @@ def _tiny_trainer(tmp_path, light: dict, **kw):
     return tr, logs
 
 
-def test_auto_switches_nets_on_from_a_self_occluding_surface(tmp_path, monkeypatch):
+def test_auto_keeps_the_nets_on_a_self_occluding_surface(tmp_path, monkeypatch):
     tr, logs = _tiny_trainer(tmp_path, {})
-    assert tr.model.occlusion is None and tr.occ_pending
+    assert tr.model.occlusion is not None and tr.occ_pending  # "auto" starts with the nets
     monkeypatch.setattr(tr, "extract", lambda res=None, clean=True: _sph(CA, RA) + _sph(CB, RB))
     for _ in range(5):  # steps 0..4: before decide_at (step 5)
         tr.train_step()
         tr.step += 1
-    assert tr.model.occlusion is None
-    rec = tr.train_step()  # step 5: measured, switched on, occlusion loss used
+    before = [p.detach().clone() for p in tr.model.occlusion.parameters()]
+    rec = tr.train_step()  # step 5: measured, kept (the same nets, trained on), occlusion loss
     tr.step += 1
     assert tr.model.occlusion is not None and tr.model.indirect is not None
+    assert all(a.shape == b.shape for a, b in zip(before, tr.model.occlusion.parameters(),
+                                                   strict=True))
     assert tr.sw.occlusion and tr.sw.indirect and not tr.occ_pending
     names = [g.get("name") for g in tr.opt.param_groups]
     assert names[-1] == "light"
@@ -238,7 +294,7 @@ def test_auto_switches_nets_on_from_a_self_occluding_surface(tmp_path, monkeypat
     dec = json.loads((tmp_path / "decisions.json").read_text())
     assert dec["occlusion"]["value"] is True and dec["occlusion"]["step"] == 5
     assert dec["occlusion"]["evidence"]["reflected_hit_fraction"] > 0.02
-    assert dec["occlusion"]["history"][0]["value"] is False  # the initial "off until" entry
+    assert dec["occlusion"]["history"][0]["value"] is True  # the initial "on until" entry
     assert {"background", "grid_res", "indirect"} <= dec.keys()
     assert any("decision occlusion = True" in s for s in logs)
     # a checkpoint taken now resumes with the nets (and their optimiser state)
@@ -250,10 +306,21 @@ def test_auto_switches_nets_on_from_a_self_occluding_surface(tmp_path, monkeypat
         assert torch.equal(a, b)
 
 
-def test_auto_stays_off_on_a_convex_surface_and_off_never_measures(tmp_path, monkeypatch):
+def test_auto_drops_the_nets_on_a_convex_surface_and_off_never_measures(tmp_path, monkeypatch):
     tr, _ = _tiny_trainer(tmp_path / "a", {"decide_until": 0.5})
     monkeypatch.setattr(tr, "extract", lambda res=None, clean=True: _sph([0, 0, 0], 0.585))
-    for _ in range(tr.cfg.iters):
+    for _ in range(6):  # through step 5 = decide_at: measured convex, nets dropped
+        tr.train_step()
+        tr.step += 1
+    assert tr.model.occlusion is None and tr.model.indirect is None
+    assert not tr.sw.occlusion and tr.occ_pending
+    assert "light" not in [g.get("name") for g in tr.opt.param_groups]
+    assert all(q.numel() for g in tr.opt.param_groups for q in g["params"])
+    tr.save_checkpoint()  # a run that dropped them resumes without them
+    tr_resumed, _ = _tiny_trainer(tmp_path / "a", {"decide_until": 0.5})
+    assert tr_resumed.load_checkpoint() and tr_resumed.model.occlusion is None
+    tr_resumed.train_step()
+    for _ in range(tr.step, tr.cfg.iters):
         tr.train_step()
         tr.step += 1
     assert tr.model.occlusion is None and not tr.occ_pending

@@ -136,13 +136,14 @@ def test_resolve_switches_decisions():
         return resolve_switches(cfg, SimpleNamespace(background=background, meta={}))
 
     d = sw({})
-    assert (d.background, d.occlusion, d.indirect, d.metallic) == ("distant", False, False, True)
+    # "auto" starts with the nets (decided once the grid has carved)
+    assert (d.background, d.occlusion, d.indirect, d.metallic) == ("distant", True, True, True)
     assert sw({}, background="alpha").background == "alpha"
     assert sw({"background": "distant"}, background="alpha").background == "distant"
     on = sw({"occlusion": "on"})
     assert on.occlusion and on.indirect
     assert not sw({"occlusion": "on", "indirect": "off"}).indirect
-    assert not sw({"indirect": "on"}).indirect  # no occlusion net to mix it in
+    assert not sw({"occlusion": "off", "indirect": "on"}).indirect  # no occlusion net to mix it in
     assert not sw({"metallic": False}).metallic  # YAML reads off as false
 
 

@@ -108,15 +108,16 @@ class LightConfig:
     """Indirect-light net mixed in by the occlusion probability; it follows ``occlusion``
     unless "off" (there is no occlusion probability to mix it in without the occlusion net)."""
     occlusion: Switch = "auto"
-    """Occlusion net + Open3D ray-cast targets. "auto": off until ``decide_at``; then the
+    """Occlusion net + Open3D ray-cast targets. "auto": on until ``decide_at``; then the
     carved surface is extracted and the training cameras' reflected view rays are cast at it;
-    on (nets created from that step) iff at least ``self_occlusion_min`` of them hit the
-    object, re-measured every ``loss.occlusion_every`` steps until ``decide_until``."""
+    kept iff at least ``self_occlusion_min`` of them hit the object, else dropped and
+    re-measured every ``loss.occlusion_every`` steps until ``decide_until`` (fresh nets if it
+    rises above)."""
     decide_at: float = 0.4
     """Fraction of ``iters`` at which "auto" first measures the self-occlusion, once the coarse
     grid has carved: at 0.2 of the preview the gold sphere was still a bumpy blob (radius
     0.52–0.84 for 0.585) and 2.2 % of its reflected rays hit it; at 0.47, 0.19 %."""
-    self_occlusion_min: float = 0.02
+    self_occlusion_min: float = 0.005
     """Fraction of reflected view rays hitting the object above which "auto" turns the
     occlusion/indirect model on (``adaptive.SELF_OCCLUSION_MIN``)."""
     decide_until: float = 0.75

@@ -52,8 +52,10 @@ def resolve_switches(cfg: ShapeConfig, scene: Any,
     * background: :func:`voxnero.shape.adaptive.decide_background` (alpha or a constant image
       border → "alpha" with that colour, else "distant").
     * occlusion / indirect: "on" builds NeRO's full light model from the start, "off" never;
-      "auto" starts **off** and is decided during training from the self-occlusion of the
-      carved surface (:meth:`ShapeTrainer.decide_occlusion`).
+      "auto" starts **on** (until the grid has carved nobody can tell, and nets switched on late
+      do not undo a neck that formed without them) and is decided during training from the
+      self-occlusion of the carved surface (:meth:`ShapeTrainer.decide_occlusion`): dropped on
+      a convex surface.
     * metallic: "auto" means on (a dielectric is metallic = 0 within the model).
 
     Args:
@@ -63,7 +65,7 @@ def resolve_switches(cfg: ShapeConfig, scene: Any,
     """
     lc = cfg.light
     bg, color, dec = adaptive.decide_background(lc.background, scene)
-    occ = lc.occlusion in ("on", True)
+    occ = adaptive.is_on(lc.occlusion)
     # the indirect light is mixed in by the occlusion probability: it needs the occlusion net
     ind = occ and adaptive.is_on(lc.indirect)
     if decisions is not None:
@@ -71,8 +73,8 @@ def resolve_switches(cfg: ShapeConfig, scene: Any,
         if adaptive.is_forced(lc.occlusion):
             why = f"forced by light.occlusion={lc.occlusion}"
         else:
-            why = (f"auto: off until step {int(cfg.light.decide_at * cfg.iters)}, then "
-                   "decided from the carved surface")
+            why = (f"auto: on until step {int(cfg.light.decide_at * cfg.iters)}, then "
+                   "kept only if the carved surface sees itself")
         decisions.append(adaptive.Decision("occlusion", occ, lc.occlusion, why))
         decisions.append(adaptive.Decision(
             "indirect", ind, lc.indirect,
@@ -247,6 +249,8 @@ class ShapeTrainer:
         sw = ck.get("switches", {})
         if sw.get("occlusion") and self.model.occlusion is None:  # switched on by "auto"
             self.enable_light_nets(bool(sw.get("indirect")), add_to_optimizer=False)
+        elif not sw.get("occlusion", True) and self.model.occlusion is not None:  # dropped
+            self.disable_light_nets(remove_from_optimizer=False)
         if "decisions" in ck:
             self.decisions = [adaptive.Decision(**d) for d in ck["decisions"]]
             self.occ_pending = bool(ck.get("occ_pending", False))
@@ -447,6 +451,20 @@ class ShapeTrainer:
         if add_to_optimizer and new:
             self.opt.add_param_group(dict(name="light", params=new, lr=cfg.optim.lr_light))
 
+    def disable_light_nets(self, remove_from_optimizer: bool = True) -> None:
+        """Drop the occlusion and indirect nets (and their optimiser group): direct light only."""
+        m = self.model
+        m.occlusion, m.indirect = None, None
+        self.sw.occlusion, self.sw.indirect = False, False
+        self.occ_targets = None
+        if remove_from_optimizer:
+            keep = [g for g in self.opt.param_groups if g.get("name") != "light"]
+            for g in self.opt.param_groups:
+                if g.get("name") == "light":
+                    for q in g["params"]:
+                        self.opt.state.pop(q, None)
+            self.opt.param_groups[:] = keep
+
     def view_rays(self, n: int) -> tuple[torch.Tensor, torch.Tensor]:
         """``n`` random training-camera rays (own RNG: the training draws are unchanged)."""
         gen = torch.Generator(device=self.device).manual_seed(self.cfg.seed + 7919)
@@ -455,10 +473,11 @@ class ShapeTrainer:
         return pixel_rays(self.cams, cam, pix)
 
     def maybe_decide_occlusion(self) -> None:
-        """For ``light.occlusion=auto``: at ``light.decide_at`` and then every
-        ``loss.occlusion_every`` steps until ``light.decide_until``, measure the self-occlusion
-        of the carved surface and switch the occlusion/indirect model on if it is above
-        ``light.self_occlusion_min`` (then it stays on)."""
+        """For ``light.occlusion=auto`` (the nets are on from the start): at
+        ``light.decide_at`` measure the self-occlusion of the carved surface; keep the
+        occlusion/indirect model if it is above ``light.self_occlusion_min``, else drop it and
+        measure again every ``loss.occlusion_every`` steps until ``light.decide_until``,
+        switching fresh nets on if it rises above (then they stay on)."""
         cfg = self.cfg
         start = int(cfg.light.decide_at * cfg.iters)
         if not self.occ_pending or self.step < start:
@@ -497,6 +516,8 @@ class ShapeTrainer:
         if on:
             self.enable_light_nets(ind)
             self.occ_pending = False
+        elif self.model.occlusion is not None:
+            self.disable_light_nets()
         self.write_decisions()
         return on
 
