@@ -69,6 +69,9 @@ class RenderConfig:
     no Monte Carlo variance term in the expected loss (costs twice the samples)."""
     visibility: bool = True
     """Cast every secondary ray against the mesh (shadows / indirect)."""
+    jitter: bool = True
+    """Training renders each object pixel through a random point of its footprint, re-cast on
+    the mesh (the photos are box-filtered over the pixel); False shades the cached centre hit."""
 
 
 @dataclass

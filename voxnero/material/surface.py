@@ -13,6 +13,7 @@ mixtures of object and background under the box filter and are left out of both 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import open3d as o3d
@@ -164,6 +165,10 @@ class SurfaceCache:
         bg_rgb: (M, 3) LINEAR target radiance of background pixels.
         n_object_total: object pixels before subsampling.
         n_background_total: background pixels before subsampling.
+        cam: (N,) long view of each object pixel; pix: (N, 2) its centre ``[x = column,
+            y = row]`` (pixel coordinates); cameras: the views (unit frame). With them a pixel
+            can be re-cast at points inside its footprint (``render.jitter``); None in caches
+            built by hand.
     """
 
     tri: Tensor
@@ -176,6 +181,9 @@ class SurfaceCache:
     bg_rgb: Tensor
     n_object_total: int = 0
     n_background_total: int = 0
+    cam: Tensor | None = None
+    pix: Tensor | None = None
+    cameras: Any = None
 
 
 def _interior(hit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -204,9 +212,9 @@ def build_cache(geom: Geometry, images: Tensor, cameras, max_pixels: int = 40000
     Returns:
         The :class:`SurfaceCache`.
     """
-    from voxnero.cameras.rays import image_rays
+    from voxnero.cameras.rays import image_rays, pixel_centers
 
-    obj = {k: [] for k in ("tri", "bary", "v", "rgb")}
+    obj = {k: [] for k in ("tri", "bary", "v", "rgb", "cam", "pix")}
     bg_d, bg_rgb = [], []
     for i in range(images.shape[0]):
         o, d = image_rays(cameras, i)
@@ -222,6 +230,8 @@ def build_cache(geom: Geometry, images: Tensor, cameras, max_pixels: int = 40000
         obj["bary"].append(bary[ko])
         obj["v"].append(-d[ko])
         obj["rgb"].append(img[ko])
+        obj["cam"].append(torch.full((int(ko.sum()),), i, dtype=torch.long))
+        obj["pix"].append(pixel_centers(H, W).reshape(-1, 2)[ko])
         bg_d.append(d[kb])
         bg_rgb.append(img[kb])
     cat = {k: torch.cat(v) for k, v in obj.items()}
@@ -237,4 +247,4 @@ def build_cache(geom: Geometry, images: Tensor, cameras, max_pixels: int = 40000
     x = geom.points_at(cat["tri"], cat["bary"])
     n = geom.normals_at(cat["tri"], cat["bary"])
     return SurfaceCache(cat["tri"], cat["bary"], x, n, cat["v"], cat["rgb"], bg_d, bg_rgb,
-                        n_obj, n_bg)
+                        n_obj, n_bg, cat["cam"], cat["pix"], cameras)

@@ -27,6 +27,7 @@ from voxnero.material.field import make_field
 from voxnero.material.lights import EnvLight, IndirectLight, init_from_background
 from voxnero.material.render import Strategies, env_sampler, shade
 from voxnero.material.surface import Geometry, SurfaceCache
+from voxnero.render.envmap import envmap_lookup
 from voxnero.render.sampling import sample_cosine
 
 
@@ -116,6 +117,38 @@ class MaterialTrainer:
                      f"{2 * self.env.height}")
 
     # ------------------------------------------------------------------ one step
+    @property
+    def jitter(self) -> bool:
+        """Whether object pixels are rendered at a random point of their footprint."""
+        c = self.cache
+        return bool(self.cfg.render.jitter) and c.cam is not None and c.cameras is not None
+
+    def render_pixels(self, idx: torch.Tensor, img: torch.Tensor,
+                      indirect: IndirectLight | None, sampler) -> torch.Tensor:
+        """Monte Carlo radiance of cached object pixels ``idx`` (linear, (B, 3)).
+
+        With ``render.jitter`` each pixel is re-cast through a uniform random point of its
+        footprint (the photos are box-filtered over it); a point that misses the mesh sees the
+        env map. Otherwise the cached pixel-centre hit is shaded.
+        """
+        from voxnero.cameras.rays import pixel_rays
+
+        c = self.cache
+        if not self.jitter:
+            return shade(self.geom, self.field, img, c.tri[idx], c.bary[idx], c.x[idx], c.n[idx],
+                         c.v[idx], self.spp, indirect, sampler, self.visibility, self.gen)
+        ci = idx.cpu()
+        pix = c.pix[idx].cpu() + torch.rand(ci.shape[0], 2, generator=self.gen) - 0.5
+        o, d = pixel_rays(c.cameras, c.cam[ci].cpu(), pix)
+        _, tri, bary = self.geom.cast(o.to(self.device), d.to(self.device))
+        d = d.to(self.device)
+        h = (tri >= 0).nonzero()[:, 0]
+        t, b = tri[h], bary[h]
+        x, n = self.geom.points_at(t, b), self.geom.normals_at(t, b)
+        lo = shade(self.geom, self.field, img, t, b, x, n, -d[h], self.spp, indirect, sampler,
+                   self.visibility, self.gen)
+        return envmap_lookup(img, d).index_put((h,), lo)
+
     def loss_terms(self) -> dict[str, torch.Tensor]:
         """Losses of one random batch (object pixels, background pixels, priors)."""
         cfg, c = self.cfg, self.cache
@@ -129,17 +162,12 @@ class MaterialTrainer:
             # two independent estimates of the same pixels: E[(p1 - t)(p2 - t)] = (E p - t)²
             # has no Monte Carlo variance term, which would otherwise favour materials whose
             # estimate is less noisy (e.g. lower roughness)
-            idx2 = torch.cat([idx, idx])
-            pred = shade(self.geom, self.field, img, c.tri[idx2], c.bary[idx2], c.x[idx2],
-                             c.n[idx2], c.v[idx2], self.spp, indirect, sampler,
-                         self.visibility, self.gen)
+            pred = self.render_pixels(torch.cat([idx, idx]), img, indirect, sampler)
             p1, p2 = srgb_clipped(pred).chunk(2)
             obj = ((p1 - target) * (p2 - target)).mean()
             mse = ((0.5 * (p1 + p2) - target) ** 2).mean().detach()
         else:
-            pred = shade(self.geom, self.field, img, c.tri[idx], c.bary[idx], c.x[idx],
-                         c.n[idx], c.v[idx], self.spp, indirect, sampler,
-                         self.visibility, self.gen)
+            pred = self.render_pixels(idx, img, indirect, sampler)
             obj = ((srgb_clipped(pred) - target) ** 2).mean()
             mse = obj.detach()
         terms = {"object": obj}
