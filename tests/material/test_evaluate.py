@@ -50,12 +50,34 @@ def test_box_filter_matches_a_supersampled_render():
 
 
 def test_one_subpixel_is_the_pixel_centre_and_samples_are_split():
-    """subpixels=1 reproduces the pixel-centre render bit for bit (same seed); a subpixel count
-    that does not divide the samples rounds each strategy up (never 0 samples for a used one)."""
+    """subpixels=1 reproduces the pixel-centre render bit for bit (same seed); counts that do
+    not divide among the subpixels still give finite renders (a subpixel may get no sample of
+    one strategy; there are never more subpixels than the largest count)."""
     a = _render(12, 1, Strategies(3, 3, 3), seed=4)
     b = _render(12, 1, Strategies(3, 3, 3), seed=4)
     assert torch.equal(a["rgb"], b["rgb"])
-    c = _render(12, 4, Strategies(3, 0, 1), seed=4)  # 1 cosine + 0 GGX + 1 env per subpixel
+    c = _render(12, 4, Strategies(3, 0, 1), seed=4)  # 3 subpixels: cos 1 each, env in one
     assert torch.isfinite(c["rgb"]).all()
     with pytest.raises(ValueError, match="subpixels"):
         _render(12, 0, Strategies(3, 3, 3))
+
+
+def test_subpixels_share_one_stratified_pattern_per_pixel():
+    """Splitting a pixel's samples among its subpixels must not cost noise: the subpixels get
+    one rotated Hammersley pattern per pixel dealt out (sample j to subpixel j mod K). With
+    independent 2-point patterns per subpixel the torus evaluation lost 1 dB at 8 spp; here
+    the seed-to-seed noise of pixels away from the silhouette must stay within 30 % of the
+    pixel-centre render's (what is left is the real variation over the footprint of a 16-px
+    sphere). Measured: 0.0148 against 0.0129."""
+    def noise(subpixels):
+        a = _render(16, subpixels, Strategies(4, 4, 4), seed=1)
+        b = _render(16, subpixels, Strategies(4, 4, 4), seed=2)
+        h = a["hit"]
+        p = torch.nn.functional.pad(h[None, None].float(), (1, 1, 1, 1))[0, 0] > 0
+        inner = h & p[:-2, 1:-1] & p[2:, 1:-1] & p[1:-1, :-2] & p[1:-1, 2:]
+        assert int(inner.sum()) >= 20
+        return (a["rgb"] - b["rgb"])[inner].abs().mean()
+
+    n1, n4 = noise(1), noise(4)
+    assert n1 > 0
+    assert n4 < 1.3 * n1, (float(n4), float(n1))

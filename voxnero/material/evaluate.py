@@ -3,10 +3,11 @@
 A pixel's value is the box-filtered average of the radiance over its footprint, as the data's
 renderer makes it (shared data README: Mitsuba ``box`` filter): each pixel is rendered at
 ``subpixels`` stratified jittered points (:func:`voxnero.cameras.rays.pixel_samples`), and
-the Monte Carlo samples
-(:func:`voxnero.material.render.shade`, ``eval_scale`` × the training samples) are split among
-them, so the cost does not grow. Points that hit the mesh are shaded, the others show the env map
-along the ray. Material maps and the hit mask are read at pixel centres.
+the pixel's Monte Carlo samples (:func:`voxnero.material.render.shade`, ``eval_scale`` × the
+training samples) — one rotated Hammersley pattern per strategy — are dealt out among them, so
+the cost does not grow and the pixel keeps the stratification of all its samples. Points that
+hit the mesh are shaded, the others show the env map along the ray. Material maps and the hit
+mask are read at pixel centres.
 
 Metrics (``voxnero.eval.images``), in sRGB of the clipped linear render, as the 8-bit images
 were made:
@@ -30,7 +31,7 @@ import numpy as np
 import torch
 
 from voxnero.material.lights import IndirectLight
-from voxnero.material.render import Strategies, env_sampler, shade
+from voxnero.material.render import Strategies, env_sampler, rotated_pattern, shade
 from voxnero.material.surface import Geometry
 from voxnero.render.envmap import envmap_lookup
 
@@ -44,9 +45,11 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
     Args:
         geom: mesh (unit frame); field: material field; env_image: (H, W, 3) linear map.
         cameras: the views (unit frame); index: which one.
-        spp: samples per strategy per pixel, split evenly among the subpixels (each gets
-            ``ceil(count / subpixels)``); indirect: use the split-sum indirect estimate for
-            secondary hits; visibility: cast secondary rays.
+        spp: samples per strategy per pixel, dealt out among the subpixels from one rotated
+            Hammersley pattern per pixel (sample j to subpixel j mod K, so the pixel keeps the
+            stratification of all its samples; at most as many subpixels as the largest
+            count); indirect: use the split-sum indirect estimate for secondary hits;
+            visibility: cast secondary rays.
         chunk: object pixels shaded at once.
         generator: torch generator (jitter and Monte Carlo).
         subpixels: points per pixel averaged in linear radiance (1: the pixel centre only).
@@ -67,12 +70,19 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
     cam = torch.full((H * W,), int(index), dtype=torch.long)
     ind = IndirectLight(env_image) if indirect else None
     sampler = env_sampler(env_image) if spp.env else None
-    sub = Strategies(*(-(-c // subpixels) for c in (spp.cos, spp.ggx, spp.env)))
+    counts = (spp.cos, spp.ggx, spp.env if sampler is not None else 0)
+    subpixels = max(1, min(subpixels, max(counts)))
+    # one rotated Hammersley pattern per pixel and strategy, dealt out to the subpixels
+    # (sample j to subpixel j mod K): the pixel keeps the stratification of all its samples
+    full = [rotated_pattern(H * W, c, generator) if c else None for c in counts]
     points = (centre[:, None] if subpixels == 1 else
               pixel_samples(H, W, subpixels, generator).reshape(H * W, subpixels, 2))
     rgb = torch.zeros(H * W, 3, device=dev)
     with torch.no_grad():
         for k in range(subpixels):
+            pats = [p[:, k::subpixels] if p is not None else None for p in full]
+            sub = Strategies(*(p.shape[1] if p is not None else 0 for p in pats))
+            pats = [p if p is None or p.shape[1] else None for p in pats]
             o, d = pixel_rays(cameras, cam, points[:, k])
             o, d = o.to(dev), d.to(dev)
             _, tri, bary = geom.cast(o, d)
@@ -83,7 +93,8 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
                 t, b = tri[j], bary[j]
                 x, n = geom.points_at(t, b), geom.normals_at(t, b)
                 c[j] = shade(geom, field, env_image, t, b, x, n, -d[j], sub, ind, sampler,
-                             visibility, generator)
+                             visibility, generator,
+                             [p[j.cpu()] if p is not None else None for p in pats])
             rgb += c / subpixels
         o, d = pixel_rays(cameras, cam, centre)
         _, tri, bary = geom.cast(o.to(dev), d.to(dev))

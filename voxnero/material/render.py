@@ -75,7 +75,8 @@ def rotated_pattern(n_pix: int, n: int, generator: torch.Generator | None,
 
 
 def sample_directions(n: Tensor, v: Tensor, alpha: Tensor, spp: Strategies, env=None,
-                      generator: torch.Generator | None = None
+                      generator: torch.Generator | None = None,
+                      patterns: list[Tensor | None] | None = None
                       ) -> tuple[Tensor, Tensor, list[int]]:
     """Draw all strategies' directions and the MIS weight-over-pdf of each.
 
@@ -85,6 +86,9 @@ def sample_directions(n: Tensor, v: Tensor, alpha: Tensor, spp: Strategies, env=
         spp: samples per strategy (the env strategy is dropped when ``env`` is None).
         env: env-map sampler (see :func:`env_sampler`) or None.
         generator: random stream.
+        patterns: optional uniform points per strategy (cosine, GGX, env), each (N, count, 2)
+            or None, used instead of a fresh :func:`rotated_pattern` (e.g. one pixel's pattern
+            shared out among its subpixels).
 
     Returns:
         l (N, S, 3) unit directions, wop (N, S) = w_k / (n_k p_k) of the strategy that drew each
@@ -96,7 +100,9 @@ def sample_directions(n: Tensor, v: Tensor, alpha: Tensor, spp: Strategies, env=
     for k, c in enumerate(counts):
         if c == 0:
             continue
-        u = rotated_pattern(N, c, generator, n.device).reshape(-1, 2)
+        u = patterns[k] if patterns is not None and patterns[k] is not None else \
+            rotated_pattern(N, c, generator, n.device)
+        u = u.to(n.device).reshape(-1, 2)
         nk = n[:, None].expand(N, c, 3).reshape(-1, 3)
         if k == 0:
             l, _ = sample_cosine(u, nk)
@@ -180,8 +186,8 @@ def incident_radiance(geom: Geometry, field, env_image: Tensor, indirect: Indire
 
 def shade(geom: Geometry, field, env_image: Tensor, tri: Tensor, bary: Tensor, x: Tensor,
           n: Tensor, v: Tensor, spp: Strategies, indirect: IndirectLight | None = None,
-          env=None, visibility: bool = True, generator: torch.Generator | None = None
-          ) -> Tensor:
+          env=None, visibility: bool = True, generator: torch.Generator | None = None,
+          patterns: list[Tensor | None] | None = None) -> Tensor:
     """Outgoing radiance L_o(x, v) of surface points, Monte Carlo with MIS (see module).
 
     Args:
@@ -195,13 +201,14 @@ def shade(geom: Geometry, field, env_image: Tensor, tri: Tensor, bary: Tensor, x
         env: env-map sampler for the env strategy (:func:`env_sampler`) or None.
         visibility: cast secondary rays (shadows / indirect); False treats all as escaping.
         generator: random stream.
+        patterns: see :func:`sample_directions`.
 
     Returns:
         (N, 3) linear radiance.
     """
     albedo, metallic, roughness = field(tri, bary, x)
     alpha = roughness_to_alpha(roughness.detach())
-    l, wop, _ = sample_directions(n, v, alpha, spp, env, generator)
+    l, wop, _ = sample_directions(n, v, alpha, spp, env, generator, patterns)
     S = l.shape[1]
     nS = n[:, None].expand_as(l)
     f = brdf_eval(nS, v[:, None].expand_as(l), l, albedo[:, None].expand(-1, S, 3),
