@@ -21,6 +21,9 @@ import yaml
 
 from voxnero.errors import ConfigError
 
+Switch = typing.Literal["auto", "on", "off"] | bool
+"""A model switch of either stage; YAML reads on/off as true/false, which mean the same."""
+
 T = TypeVar("T")
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"

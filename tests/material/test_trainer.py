@@ -114,3 +114,20 @@ def test_jittered_training_pixels_average_to_the_box_filter():
     assert len(idx) >= 30
     err_jit, err_centre = (jit - ref).abs().mean(), (centre - ref).abs().mean()
     assert err_jit < 0.05 and err_centre > 3 * err_jit, (float(err_jit), float(err_centre))
+
+
+def test_visibility_casts_auto_skips_a_convex_mesh_and_can_be_forced():
+    """``render.visibility``: "auto" casts secondary rays only when some hit the mesh (never on
+    a sphere), "on" always casts them (the user can force the choice), "off" never measures."""
+    geom, size = sphere_geometry(0.5, 40), 16
+    cams = ring_cameras(2, size)
+    cache = build_cache(geom, torch.zeros(2, size, size, 3), cams, max_pixels=0)
+    seen = {}
+    for v in ("auto", "on", "off"):
+        cfg = MaterialConfig(iters=0, bg_batch=0, log_every=10**6, checkpoint_every=0)
+        cfg.render.visibility = v
+        tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None)
+        seen[v] = (tr.visibility, tr.decisions["secondary_hit_fraction"])
+    assert seen["auto"] == (False, 0.0)
+    assert seen["on"][0] is True
+    assert seen["off"] == (False, 0.0)

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from dataclasses import field as _field
 from typing import Literal
 
+from voxnero.config import Switch
 from voxnero.errors import ConfigError
 
 
@@ -67,8 +68,10 @@ class RenderConfig:
     decorrelate: bool = True
     """Loss on two independent estimates per pixel, (p1 − t)(p2 − t), instead of (p − t)²:
     no Monte Carlo variance term in the expected loss (costs twice the samples)."""
-    visibility: bool = True
-    """Cast every secondary ray against the mesh (shadows / indirect)."""
+    visibility: Switch = "auto"
+    """Cast every secondary ray against the mesh (shadows / indirect). "auto": only when some
+    cosine rays from the surface hit it (a convex mesh never shadows itself: the same result
+    without the casts); "on" / true: always; "off" / false: never."""
     jitter: bool = True
     """Training renders each object pixel through a random point of its footprint, re-cast on
     the mesh (the photos are box-filtered over the pixel); False shades the cached centre hit."""

@@ -84,11 +84,13 @@ class MaterialTrainer:
                                             self.heights[0])
         self.env = EnvLight(env_init.to(self.device))
         self.spp = Strategies(cfg.render.spp_cos, cfg.render.spp_ggx, cfg.render.spp_env)
-        frac = needs_indirect(geom, cache, generator=self.gen) if cfg.render.visibility else 0.0
+        vis = cfg.render.visibility
+        frac = needs_indirect(geom, cache, generator=self.gen) if vis not in ("off", False) \
+            else 0.0
         mode = cfg.light.indirect
         self.use_indirect = mode == "splitsum" or (mode == "auto" and frac > 1e-3)
-        # no secondary ray of a convex object hits it: skip the casts (exactly the same result)
-        self.visibility = cfg.render.visibility and frac > 0
+        # no secondary ray of a convex object hits it: "auto" skips the casts (same result)
+        self.visibility = vis in ("on", True) or (vis == "auto" and frac > 0)
         self.decisions = {"secondary_hit_fraction": frac, "indirect": self.use_indirect,
                           "visibility_casts": self.visibility,
                           "env_sampling": env_sampler(torch.ones(4, 8, 3)) is not None}

@@ -10,10 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+from voxnero.config import Switch
 from voxnero.errors import ConfigError
-
-Switch = Literal["auto", "on", "off"] | bool
-"""A model switch; YAML reads on/off as true/false, which mean the same."""
 
 
 @dataclass
