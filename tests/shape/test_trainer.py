@@ -208,3 +208,69 @@ def test_interrupt_during_first_look_restarts_it(scene, tmp_path):
     tr2 = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
     tr2.run()
     assert tr2.step == 20 and (tmp_path / "mesh.ply").is_file()
+
+
+@pytest.mark.parametrize("first,other", [(0.7, 0.15), (0.15, 0.7)])
+def test_race_keeps_the_start_with_the_better_final_fit(scene, tmp_path, first, other):
+    """``init_trial`` = 1: each start is a complete run in ``starts/``; the one whose final
+    model fits the photos better is kept (whichever is listed first), its mesh is the run's,
+    the other start's log lines carry a ``trial`` field, and times and steps are the totals."""
+    import json
+
+    cfg = _cfg(40)
+    cfg.grid.init_radius, cfg.grid.init_candidates, cfg.grid.init_trial = first, [other], 1.0
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
+    path = tr.run()
+    dec = json.loads((tmp_path / "decisions.json").read_text())["init_radius"]
+    assert dec["value"] == 0.7, dec
+    ev = dec["evidence"]
+    p07, p015 = (ev["psnr"][0], ev["psnr"][1]) if first == 0.7 else (ev["psnr"][1], ev["psnr"][0])
+    assert p07 > p015 + 1.0, ev  # dB: the small sphere leaves most of the object unexplained
+    assert path.read_bytes() == (tmp_path / "starts" / "r0.7" / "mesh.ply").read_bytes()
+    assert (tmp_path / "starts" / "r0.15" / "mesh.ply").is_file()
+    recs = [json.loads(x) for x in (tmp_path / "log.jsonl").read_text().splitlines()]
+    kept = [r for r in recs if "trial" not in r and "loss" in r]
+    assert {r.get("trial") for r in recs if "trial" in r} == {0.15}
+    assert max(r["step"] for r in kept) == 40
+    assert tr.step == 80
+    summary = json.loads((tmp_path / "shape.json").read_text())
+    assert summary["init_radius"] == 0.7 and summary["train_time_s"] == pytest.approx(
+        tr.train_time)
+
+
+def test_race_interrupted_in_its_second_start_resumes_there(scene, tmp_path):
+    """A kill during the second start keeps the first start's finished run: re-running trains
+    only what is left of the second."""
+    cfg = _cfg(20)
+    cfg.grid.init_candidates, cfg.grid.init_trial = [0.5], 1.0
+    cfg.ckpt_every_s = 0.0  # a checkpoint every step
+    steps = {"n": 0}
+    orig = ShapeTrainer.train_step
+
+    def flaky(self):
+        steps["n"] += 1
+        if steps["n"] == 30:  # step 10 of the second start
+            raise KeyboardInterrupt
+        return orig(self)
+
+    ShapeTrainer.train_step = flaky
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None).run()
+    finally:
+        ShapeTrainer.train_step = orig
+    assert (tmp_path / "starts" / "r0.7" / "mesh.ply").is_file()
+    assert not (tmp_path / "mesh.ply").exists()
+    counted = {"n": 0}
+
+    def counting(self):
+        counted["n"] += 1
+        return orig(self)
+
+    ShapeTrainer.train_step = counting
+    try:
+        tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
+        tr.run()
+    finally:
+        ShapeTrainer.train_step = orig
+    assert counted["n"] == 11 and tr.step == 40 and (tmp_path / "mesh.ply").is_file()

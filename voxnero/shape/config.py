@@ -192,6 +192,8 @@ class ShapeConfig:
     """Resolution of the grid resampling used for the final marching cubes."""
     eval_mesh_res: int = 0
     """Marching-cubes resolution of the periodic Chamfer evaluations (0 = the grid's own)."""
+    fit_rays: int = 16384
+    """Training pixels (fixed seed) on which a race of initial radii compares the final fits."""
     ckpt_every_s: float = 60.0
     preview_every: int = 500
     eval_every_s: float = 60.0
@@ -211,11 +213,12 @@ class ShapeConfig:
             raise ConfigError(f"shape.grid.res={g.res}: every resolution must be >= 4")
         if self.sampling.coarse_keep > self.sampling.coarse:
             raise ConfigError("shape.sampling.coarse_keep must be <= shape.sampling.coarse")
-        if g.init_candidates and not 0.0 < g.init_trial < 1.0:
-            raise ConfigError(f"shape.grid.init_trial={g.init_trial} must be in (0, 1)",
-                              fix="give the fraction of iters each initial radius trains for")
+        if g.init_candidates and not 0.0 < g.init_trial <= 1.0:
+            raise ConfigError(f"shape.grid.init_trial={g.init_trial} must be in (0, 1]",
+                              fix="give the fraction of iters each initial radius trains for "
+                                  "(1: each start is a complete run)")
         if g.init_candidates and self.light.occlusion == "auto" and \
-                g.init_trial >= self.light.decide_at:
+                self.light.decide_at <= g.init_trial < 1.0:
             raise ConfigError(f"shape.grid.init_trial={g.init_trial} must end before "
                               f"shape.light.decide_at={self.light.decide_at}",
                               fix="shorten the first look or decide the occlusion later")

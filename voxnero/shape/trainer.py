@@ -162,6 +162,8 @@ class ShapeTrainer:
         self.images = torch.as_tensor(train.images, dtype=torch.float32).reshape(-1, 3) \
             .to(self.device)
         self.decisions: list[adaptive.Decision] = []
+        self.cfg_in = cfg
+        """The config as given (before :func:`adapt_config`): each start of a race gets it."""
         self.cfg = cfg = adapt_config(cfg, scene, self.decisions)
         self.sw = resolve_switches(cfg, scene, self.decisions)
         self.occ_pending = cfg.light.occlusion == "auto"
@@ -410,6 +412,86 @@ class ShapeTrainer:
         self.log(dec.line())
         self.write_decisions()
 
+    def race_starts(self) -> Path:
+        """Race of initial radii (``grid.init_trial`` = 1): each start (``grid.init_radius``
+        first, then ``grid.init_candidates``) is a complete run in ``starts/r<radius>/`` with its
+        own checkpoints (re-running resumes the unfinished one and skips the finished ones).
+        The start whose final model fits the photos best (:meth:`fit_psnr`; another start must
+        beat ``init_radius``'s by ``grid.init_margin`` dB) is kept: its ``mesh.ply``,
+        ``sdf.npz``, ``envmap.exr`` and ``shape.json`` are copied here, its log lines go to
+        ``log.jsonl`` as they are and the other starts' with a ``trial`` field, and the
+        "init_radius" decision joins its decisions. ``train_time`` and ``step`` become the
+        race's totals. Returns the kept mesh (input frame)."""
+        import shutil
+
+        g = self.cfg_in.grid
+        radii = [g.init_radius] + [r for r in g.init_candidates if r != g.init_radius]
+        best: tuple[float, int, ShapeTrainer] | None = None
+        fits, seconds, steps = [], 0.0, 0
+        for k, radius in enumerate(radii):
+            sub = replace(self.cfg_in, grid=replace(g, init_radius=radius, init_candidates=[]))
+            folder = self.out / "starts" / f"r{radius:g}"
+            self.log(f"[shape] start r={radius:g} ({k + 1} of {len(radii)}): a complete run "
+                     f"in {folder}")
+            tr = ShapeTrainer(sub, self.scene, folder, self.device, self.progress, self.log)
+            tr.run()
+            fit = tr.fit_psnr()
+            fits.append(round(fit, 3))
+            seconds += tr.train_time
+            steps += tr.step
+            self.log(f"[shape] start r={radius:g}: final fit {fit:.2f} dB "
+                     f"({tr.train_time:.0f} s)")
+            margin = g.init_margin if best is not None and best[1] == 0 else 0.0
+            if best is None or fit > best[0] + margin:
+                best = (fit, k, tr)
+            del tr
+        assert best is not None
+        _, k, win = best
+        for name in ("mesh.ply", "sdf.npz", "envmap.exr", "shape.json"):
+            shutil.copyfile(win.out / name, self.out / name)
+        with open(self.out / "log.jsonl", "w") as fh:
+            for radius in radii:
+                src = self.out / "starts" / f"r{radius:g}" / "log.jsonl"
+                for line in src.read_text().splitlines():
+                    rec = json.loads(line)
+                    if radius != radii[k]:
+                        rec["trial"] = radius
+                    fh.write(json.dumps(rec) + "\n")
+        self.model, self.sw, self.cfg = win.model, win.sw, win.cfg
+        self.step, self.train_time = steps, seconds
+        dec = adaptive.Decision(
+            "init_radius", radii[k], [g.init_radius] + list(g.init_candidates),
+            f"best fit of {len(radii)} complete runs to {self.cfg.fit_rays} fixed training rays "
+            f"(another start must beat r={g.init_radius:g} by {g.init_margin:g} dB): "
+            + ", ".join(f"r={r:g}: {p:.2f} dB" for r, p in zip(radii, fits, strict=True)),
+            {"radii": radii, "psnr": fits, "trial_steps": self.cfg.iters,
+             "seconds": round(seconds, 2)}, self.cfg.iters)
+        self.decisions = win.decisions + [dec]
+        self.log(dec.line())
+        self.write_decisions()
+        summary = json.loads((self.out / "shape.json").read_text())
+        summary.update(train_time_s=seconds, race_steps=steps, init_radius=radii[k])
+        (self.out / "shape.json").write_text(json.dumps(summary, indent=2))
+        return self.out / "mesh.ply"
+
+    @torch.no_grad()
+    def fit_psnr(self, chunk: int = 8192) -> float:
+        """PSNR (dB, linear RGB) of the current model on ``fit_rays`` training pixels drawn
+        with a fixed seed (the same pixels for every start of a race), rendered as at test
+        time."""
+        gen = torch.Generator(device=self.device).manual_seed(self.cfg.seed + 104729)
+        cam, pix = random_pixels(self.cfg.fit_rays, self.n_img, self.h, self.w, generator=gen,
+                                 device=self.device)
+        pi = pix.long()
+        target = self.images[(cam * self.h + pi[:, 1]) * self.w + pi[:, 0]]
+        o, d = pixel_rays(self.cams, cam, pix)
+        s = self.sharpness(self.step)
+        self.model.env.prepare()
+        rgb = torch.cat([render_rays(self.model, o[i:i + chunk], d[i:i + chunk], s, self.cfg,
+                                     train=False)["rgb"] for i in range(0, o.shape[0], chunk)])
+        self.model.env.release()
+        return losses.psnr(rgb, target)
+
     # ------------------------------------------------------------------ surfaces
     @torch.no_grad()
     def extract(self, res: int | None = None, clean: bool = True):
@@ -599,6 +681,8 @@ class ShapeTrainer:
         from tqdm import tqdm
 
         cfg = self.cfg
+        if cfg.grid.init_candidates and cfg.grid.init_trial >= 1.0:
+            return self.race_starts()
         self.load_checkpoint()
         self.log(f"[shape] switches: {asdict(self.sw)}")
         for d in self.decisions:
@@ -610,7 +694,7 @@ class ShapeTrainer:
         last_ckpt = time.perf_counter()
         log_every = max(1, cfg.iters // 200)
         with open(self.out / "log.jsonl", "a") as fh, _Stop() as stop:
-            if self.step == 0 and cfg.grid.init_candidates:
+            if self.step == 0 and cfg.grid.init_candidates and cfg.grid.init_trial < 1.0:
                 try:
                     self.choose_init(fh, bar, stop)
                 except KeyboardInterrupt:
