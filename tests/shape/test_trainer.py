@@ -191,7 +191,7 @@ def test_first_look_keeps_the_better_start(scene, tmp_path, first, other):
 
 def test_interrupt_during_first_look_restarts_it(scene, tmp_path):
     cfg = _cfg(20)
-    cfg.grid.init_candidates = [0.5]
+    cfg.grid.init_candidates, cfg.grid.init_trial, cfg.grid.init_margin = [0.5], 0.3, 1.0
     tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
     orig, calls = tr.train_step, {"n": 0}
 

@@ -96,7 +96,7 @@ def test_short_stage1_run_same_loss_curve(runs):
     """Same loss at every step for k = 1e-3, 1, 1e3 (rel. 1e-3: the unit-frame cameras differ
     by float rounding only), all finite, and the run did change the loss."""
     ref, _ = runs[1.0]
-    g = _cfg().grid  # the first look trains each extra start for init_trial of the steps
+    g = _cfg().grid  # each extra start trains for init_trial of the steps (1: a whole run)
     assert len(ref) == STEPS + len(g.init_candidates) * int(g.init_trial * STEPS)
     assert np.isfinite(ref).all()
     assert abs(ref[-1] - ref[0]) > 1e-3 * ref[0]
