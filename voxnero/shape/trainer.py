@@ -271,6 +271,17 @@ class ShapeTrainer:
         return True
 
     # ------------------------------------------------------------------ one step
+    def pixel_batch(self, n: int, gen: torch.Generator
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``n`` random training pixels drawn with ``gen``: ray origins and directions
+        ``(n, 3)`` (unit frame) and the photos' linear RGB ``(n, 3)`` there."""
+        cam, pix = random_pixels(n, self.n_img, self.h, self.w, generator=gen,
+                                 device=self.device)
+        pi = pix.long()
+        target = self.images[(cam * self.h + pi[:, 1]) * self.w + pi[:, 0]]
+        o, d = pixel_rays(self.cams, cam, pix)
+        return o, d, target
+
     def train_step(self) -> dict[str, float]:
         """One optimisation step; returns scalars for logging."""
         cfg = self.cfg
@@ -282,11 +293,7 @@ class ShapeTrainer:
         for g in self.opt.param_groups:
             g["lr"] = g.setdefault("base_lr", g["lr"]) * lrf
         self.maybe_decide_occlusion()
-        cam, pix = random_pixels(cfg.sampling.rays, self.n_img, self.h, self.w,
-                                 generator=self.gen, device=self.device)
-        pi = pix.long()
-        target = self.images[(cam * self.h + pi[:, 1]) * self.w + pi[:, 0]]
-        o, d = pixel_rays(self.cams, cam, pix)
+        o, d, target = self.pixel_batch(cfg.sampling.rays, self.gen)
         m = self.model
         m.env.prepare()
         out = render_rays(m, o, d, s, cfg, train=True, generator=self.gen)
@@ -483,11 +490,7 @@ class ShapeTrainer:
         with a fixed seed (the same pixels for every start of a race), rendered as at test
         time."""
         gen = torch.Generator(device=self.device).manual_seed(self.cfg.seed + 104729)
-        cam, pix = random_pixels(self.cfg.fit_rays, self.n_img, self.h, self.w, generator=gen,
-                                 device=self.device)
-        pi = pix.long()
-        target = self.images[(cam * self.h + pi[:, 1]) * self.w + pi[:, 0]]
-        o, d = pixel_rays(self.cams, cam, pix)
+        o, d, target = self.pixel_batch(self.cfg.fit_rays, gen)
         s = self.sharpness(self.step)
         self.model.env.prepare()
         rgb = torch.cat([render_rays(self.model, o[i:i + chunk], d[i:i + chunk], s, self.cfg,
