@@ -10,7 +10,7 @@ from voxnero.material.evaluate import render_view
 from voxnero.material.field import GridMaterial, VertexMaterial
 from voxnero.material.render import Strategies, env_sampler, shade
 from voxnero.material.surface import build_cache
-from voxnero.material.trainer import MaterialTrainer
+from voxnero.material.trainer import SECONDARY_HIT_MIN, MaterialTrainer, decide_secondary
 from voxnero.render.envmap import envmap_lookup
 
 TRUE = {"albedo": (0.9, 0.6, 0.3), "metallic": 1.0, "roughness": 0.25}
@@ -131,3 +131,35 @@ def test_visibility_casts_auto_skips_a_convex_mesh_and_can_be_forced():
     assert seen["auto"] == (False, 0.0)
     assert seen["on"][0] is True
     assert seen["off"] == (False, 0.0)
+
+
+def test_secondary_light_model_line_and_forcing():
+    """Under 0.1 % of secondary rays hitting the mesh (facet-scale dents of a convex object's
+    marching-cubes mesh) "auto" models neither shadows nor indirect light; at or above it both."""
+    assert decide_secondary(0.0, "auto", "auto") == (False, False)
+    assert decide_secondary(0.0007, "auto", "auto") == (False, False)  # gold preview mesh
+    assert decide_secondary(SECONDARY_HIT_MIN, "auto", "auto") == (True, True)
+    assert decide_secondary(0.04, "auto", "auto") == (True, True)  # the dev torus
+    assert decide_secondary(0.0, "on", "auto") == (False, True)
+    assert decide_secondary(0.0, True, "splitsum") == (True, True)
+    assert decide_secondary(0.04, "off", "off") == (False, False)
+    assert decide_secondary(0.04, False, "auto") == (True, False)
+
+
+def test_visibility_casts_auto_turn_on_for_two_spheres_that_see_each_other():
+    """A real self-occluding mesh measures well above the line and gets casts + indirect."""
+    import open3d as o3d
+
+    from voxnero.material.surface import Geometry
+
+    a = o3d.geometry.TriangleMesh.create_sphere(0.3, 30).translate([-0.32, 0.0, 0.0])
+    b = o3d.geometry.TriangleMesh.create_sphere(0.3, 30).translate([0.32, 0.0, 0.0])
+    pair = a + b
+    pair.compute_vertex_normals()
+    geom, size = Geometry.from_legacy(pair), 24
+    cams = ring_cameras(4, size)
+    cache = build_cache(geom, torch.zeros(4, size, size, 3), cams, max_pixels=0)
+    cfg = MaterialConfig(iters=0, bg_batch=0, log_every=10**6, checkpoint_every=0)
+    tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None)
+    assert tr.decisions["secondary_hit_fraction"] > 10 * SECONDARY_HIT_MIN
+    assert tr.visibility and tr.use_indirect

@@ -44,8 +44,8 @@ class LightConfig:
     """Fraction of ``iters`` at which the env map moves to the next resolution."""
     indirect: Literal["auto", "splitsum", "off"] = "auto"
     """Radiance of secondary rays that hit the object: split-sum estimate of the outgoing
-    radiance at the hit from the current material and env map (auto: on when any secondary ray
-    of the cache hits the mesh), or off (black)."""
+    radiance at the hit from the current material and env map (auto: on when at least 0.1 % of
+    the cache's secondary rays hit the mesh, ``trainer.SECONDARY_HIT_MIN``), or off (black)."""
     env_smooth: float = 1e-4
     """Weight of a total-variation prior on the log env map (fills directions never seen)."""
 
@@ -69,9 +69,10 @@ class RenderConfig:
     """Loss on two independent estimates per pixel, (p1 − t)(p2 − t), instead of (p − t)²:
     no Monte Carlo variance term in the expected loss (costs twice the samples)."""
     visibility: Switch = "auto"
-    """Cast every secondary ray against the mesh (shadows / indirect). "auto": only when some
-    cosine rays from the surface hit it (a convex mesh never shadows itself: the same result
-    without the casts); "on" / true: always; "off" / false: never."""
+    """Cast every secondary ray against the mesh (shadows / indirect). "auto": only when at
+    least 0.1 % of cosine rays from the surface hit it (``trainer.SECONDARY_HIT_MIN``; a convex
+    object never shadows itself, and its marching-cubes mesh measures 0–0.07 %); "on" / true:
+    always; "off" / false: never."""
     jitter: bool = True
     """Training renders each object pixel through a random point of its footprint, re-cast on
     the mesh (the photos are box-filtered over the pixel); False shades the cached centre hit."""

@@ -18,6 +18,7 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -51,6 +52,32 @@ def needs_indirect(geom: Geometry, cache: SurfaceCache, n_points: int = 4096,
     l, _ = sample_cosine(u, cache.n[idx])
     o = geom.spawn(cache.tri[idx], cache.x[idx], l)
     return float(geom.occluded(o, l).float().mean())
+
+
+SECONDARY_HIT_MIN = 1e-3
+"""Fraction of cosine secondary rays hitting the mesh below which "auto" models neither shadows
+nor inter-reflection. Those rays are all that the casts and the indirect estimate change, so
+the rendered light moves by about this fraction on average, far under the Monte Carlo noise of
+a training estimate (a few samples per strategy). Marching-cubes meshes of convex objects
+measure 0–0.07 % (facet-scale dents), self-occluding ones 3.9–4.6 % (the dev torus)."""
+
+
+def decide_secondary(fraction: float, visibility: Any, indirect: str) -> tuple[bool, bool]:
+    """Stage-2 light model from the measured secondary-ray hit fraction.
+
+    Args:
+        fraction: :func:`needs_indirect` (0 when ``visibility`` is off: nothing measured).
+        visibility: ``render.visibility`` ("auto", "on"/True, "off"/False).
+        indirect: ``light.indirect`` ("auto", "splitsum", "off").
+
+    Returns:
+        ``(use_indirect, visibility_casts)``: "auto" turns each on at
+        :data:`SECONDARY_HIT_MIN` or more; forced settings win.
+    """
+    seen = fraction >= SECONDARY_HIT_MIN
+    use_indirect = indirect == "splitsum" or (indirect == "auto" and seen)
+    casts = visibility in ("on", True) or (visibility == "auto" and seen)
+    return use_indirect, casts
 
 
 class MaterialTrainer:
@@ -87,10 +114,7 @@ class MaterialTrainer:
         vis = cfg.render.visibility
         frac = needs_indirect(geom, cache, generator=self.gen) if vis not in ("off", False) \
             else 0.0
-        mode = cfg.light.indirect
-        self.use_indirect = mode == "splitsum" or (mode == "auto" and frac > 1e-3)
-        # no secondary ray of a convex object hits it: "auto" skips the casts (same result)
-        self.visibility = vis in ("on", True) or (vis == "auto" and frac > 0)
+        self.use_indirect, self.visibility = decide_secondary(frac, vis, cfg.light.indirect)
         self.decisions = {"secondary_hit_fraction": frac, "indirect": self.use_indirect,
                           "visibility_casts": self.visibility,
                           "env_sampling": env_sampler(torch.ones(4, 8, 3)) is not None}

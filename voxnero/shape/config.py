@@ -139,6 +139,12 @@ class LightConfig:
     """distant: background pixel = env radiance along the ray; alpha: composite on the known
     background colour (images with alpha, or "auto" on images whose border is one colour)."""
     hidden: int = 32
+    init_roughness: float = 0.4
+    """Perceptual roughness the material head outputs before training (everywhere). A rough
+    start lets blur absorb the normal error of the early, coarse surface; a mirror can then
+    stay rough (two_spheres 256², seed 1: roughness 0.53 on the mirror, Chamfer 0.024). A
+    near-specular start (0.1) removed that on the pair but left lone mirrors lumpy
+    (sphere_gold preview 0.0116 → 0.070): docs/STAGE1.md, finding 14."""
 
 
 @dataclass

@@ -59,7 +59,8 @@ class ShapeModel(nn.Module):
         self.sdf = SDFGrid(res or g.res[0], g.bound, g.init_radius)
         self.feat = DenseGrid(g.feat_dim, g.feat_res, g.bound)
         nn.init.normal_(self.feat.grid, std=0.1)
-        self.material = MaterialHead(g.feat_dim, lc.hidden, metallic=sw.metallic)
+        self.material = MaterialHead(g.feat_dim, lc.hidden, metallic=sw.metallic,
+                                     init_roughness=lc.init_roughness)
         self.env = EnvLight(lc.env_height, lc.env_init, lc.max_log_radiance)
         self.indirect = IndirectLight(g.feat_dim, lc.hidden) if sw.indirect else None
         self.occlusion = OcclusionNet(g.feat_dim, lc.hidden) if sw.occlusion else None
