@@ -40,3 +40,20 @@ def test_lambert_limit_and_metal_colour():
     assert torch.allclose(c / c.max(), alb / alb.max(), atol=0.02)
     # a smooth metal facing the viewer reflects about F0 = albedo of the light
     assert torch.allclose(c, alb, atol=0.05)
+
+
+def test_material_head_starts_at_the_configured_roughness():
+    """``light.init_roughness`` reaches the stage-1 material head: before training, every
+    point reads that roughness (the knob of docs/STAGE1.md finding 14)."""
+    from voxnero.config import from_dict
+    from voxnero.shape.config import ShapeConfig
+    from voxnero.shape.renderer import ShapeModel, Switches
+
+    for r0 in (0.1, 0.4, 0.9):
+        cfg = from_dict(ShapeConfig, {"grid": {"res": [16], "upsample_at": []},
+                                      "light": {"init_roughness": r0}})
+        model = ShapeModel(cfg, Switches())
+        pts = torch.rand(64, 3) * 1.6 - 0.8
+        with torch.no_grad():
+            _, _, rough = model.material(model.feat(pts))
+        assert torch.allclose(rough, torch.full_like(rough, r0), atol=0.03), (r0, rough.mean())
