@@ -556,9 +556,8 @@ class ShapeTrainer:
     def view_rays(self, n: int) -> tuple[torch.Tensor, torch.Tensor]:
         """``n`` random training-camera rays (own RNG: the training draws are unchanged)."""
         gen = torch.Generator(device=self.device).manual_seed(self.cfg.seed + 7919)
-        cam, pix = random_pixels(n, self.n_img, self.h, self.w, generator=gen,
-                                 device=self.device)
-        return pixel_rays(self.cams, cam, pix)
+        o, d, _ = self.pixel_batch(n, gen)
+        return o, d
 
     def maybe_decide_occlusion(self) -> None:
         """For ``light.occlusion=auto`` (the nets are on from the start): at
