@@ -186,7 +186,7 @@ def test_first_look_keeps_the_better_start(scene, tmp_path, first, other):
     assert p07 > p015 + 1.0, ev  # dB: the small sphere leaves most of the object unexplained
     trial = [json.loads(l) for l in (tmp_path / "log.jsonl").read_text().splitlines()
              if '"trial"' in l]
-    assert {r["trial"] for r in trial} == {first, other}
+    assert {r["trial"] for r in trial} == {f"r{first:g}", f"r{other:g}"}
 
 
 def test_interrupt_during_first_look_restarts_it(scene, tmp_path):
@@ -230,12 +230,54 @@ def test_race_keeps_the_start_with_the_better_final_fit(scene, tmp_path, first, 
     assert (tmp_path / "starts" / "r0.15" / "mesh.ply").is_file()
     recs = [json.loads(x) for x in (tmp_path / "log.jsonl").read_text().splitlines()]
     kept = [r for r in recs if "trial" not in r and "loss" in r]
-    assert {r.get("trial") for r in recs if "trial" in r} == {0.15}
+    assert {r.get("trial") for r in recs if "trial" in r} == {"r0.15"}
     assert max(r["step"] for r in kept) == 40
     assert tr.step == 80
     summary = json.loads((tmp_path / "shape.json").read_text())
     assert summary["init_radius"] == 0.7 and summary["train_time_s"] == pytest.approx(
         tr.train_time)
+
+
+def test_race_of_roughness_starts_from_the_kept_radius(scene, tmp_path):
+    """``light.init_roughness_candidates``: after the race of radii (0.15 loses to 0.7), each
+    candidate roughness is a complete run from the kept radius; the start with the best final
+    fit is kept and its recorded fit is the kept model's fit."""
+    import json
+
+    cfg = _cfg(30)
+    cfg.grid.init_radius, cfg.grid.init_candidates, cfg.grid.init_trial = 0.15, [0.7], 1.0
+    cfg.light.init_roughness_candidates = [0.1]
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
+    path = tr.run()
+    decs = json.loads((tmp_path / "decisions.json").read_text())
+    assert decs["init_radius"]["value"] == 0.7
+    rough = decs["init_roughness"]
+    assert rough["evidence"]["radius"] == 0.7 and rough["evidence"]["values"] == [0.4, 0.1]
+    fits = rough["evidence"]["psnr"]
+    kept = rough["evidence"]["values"][int(np.argmax(fits))]
+    assert rough["value"] == kept
+    folder = "r0.7" if kept == 0.4 else "r0.7_rough0.1"
+    assert path.read_bytes() == (tmp_path / "starts" / folder / "mesh.ply").read_bytes()
+    assert tr.fit_psnr() == pytest.approx(max(fits), abs=1e-3)
+    assert sorted(p.name for p in (tmp_path / "starts").iterdir()) == \
+        ["r0.15", "r0.7", "r0.7_rough0.1"]
+    assert tr.step == 90
+    assert json.loads((tmp_path / "shape.json").read_text())["init_roughness"] == kept
+
+
+def test_roughness_candidates_need_complete_runs():
+    """A first look (``init_trial`` < 1) cannot race roughness: a clear error with the fix."""
+    from voxnero.errors import ConfigError
+
+    cfg = _cfg(30)
+    cfg.grid.init_candidates, cfg.grid.init_trial = [0.5], 0.3
+    cfg.light.init_roughness_candidates = [0.1]
+    with pytest.raises(ConfigError, match="init_trial=1"):
+        cfg.validate()
+    cfg.grid.init_trial = 1.0
+    cfg.light.init_roughness_candidates = [0.01]
+    with pytest.raises(ConfigError, match="0.02"):
+        cfg.validate()
 
 
 def test_race_interrupted_in_its_second_start_resumes_there(scene, tmp_path):

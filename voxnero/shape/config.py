@@ -145,6 +145,12 @@ class LightConfig:
     stay rough (two_spheres 256², seed 1: roughness 0.53 on the mirror, Chamfer 0.024). A
     near-specular start (0.1) removed that on the pair but left lone mirrors lumpy
     (sphere_gold preview 0.0116 → 0.070): docs/STAGE1.md, finding 14."""
+    init_roughness_candidates: list[float] = field(default_factory=list)
+    """Other starting roughnesses raced from the kept initial radius (complete runs, after the
+    race of radii; ``grid.init_trial`` must be 1); the start that fits the photos best is kept.
+    [] (default) = ``init_roughness`` only. One start rarely serves every object: a rough start
+    can leave a mirror rough for good, a near-specular one leaves a lone mirror lumpy
+    (docs/STAGE1.md, finding 15)."""
 
 
 @dataclass
@@ -234,5 +240,16 @@ class ShapeConfig:
             raise ConfigError(f"shape.grid.init_trial={g.init_trial} must end before "
                               f"shape.light.decide_at={self.light.decide_at}",
                               fix="shorten the first look or decide the occlusion later")
+        rc = self.light.init_roughness_candidates
+        if rc and not (g.init_trial >= 1.0):
+            raise ConfigError(f"shape.light.init_roughness_candidates={rc} needs complete runs "
+                              f"(shape.grid.init_trial=1, not {g.init_trial})",
+                              fix="set shape.grid.init_trial=1 or "
+                                  "'shape.light.init_roughness_candidates=[]'")
+        if any(not 0.02 < r < 1.0 for r in [self.light.init_roughness, *rc]):
+            raise ConfigError(f"shape.light.init_roughness={self.light.init_roughness} and its "
+                              f"candidates {rc} must lie in (0.02, 1) (0.02: the material "
+                              "head's smallest roughness)",
+                              fix="give perceptual roughnesses such as 0.1 or 0.4")
         if self.iters < 1:
             raise ConfigError("shape.iters must be >= 1")

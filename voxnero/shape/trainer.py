@@ -394,7 +394,7 @@ class ShapeTrainer:
                     raise KeyboardInterrupt
                 if self.step % max(1, self.cfg.iters // 200) == 0:
                     self._log_line(fh, {"time": round(self.train_time, 2), "step": self.step,
-                                        "trial": radius, **rec})
+                                        "trial": f"r{radius:g}", **rec})
             tail = [p for p in psnrs[-max(1, n // 3):] if math.isfinite(p)]
             score = float(np.mean(tail)) if tail else -math.inf
             scores.append(round(score, 3))
@@ -423,64 +423,105 @@ class ShapeTrainer:
         self.write_decisions()
 
     def race_starts(self) -> Path:
-        """Race of initial radii (``grid.init_trial`` = 1): each start (``grid.init_radius``
-        first, then ``grid.init_candidates``) is a complete run in ``starts/r<radius>/`` with its
-        own checkpoints (re-running resumes the unfinished one and skips the finished ones).
-        The start whose final model fits the photos best (:meth:`fit_psnr`; another start must
-        beat ``init_radius``'s by ``grid.init_margin`` dB) is kept: its ``mesh.ply``,
-        ``sdf.npz``, ``envmap.exr`` and ``shape.json`` are copied here, its log lines go to
-        ``log.jsonl`` as they are and the other starts' with a ``trial`` field, and the
-        "init_radius" decision joins its decisions. ``train_time`` and ``step`` become the
-        race's totals. Returns the kept mesh (input frame)."""
+        """Race of starts (``grid.init_trial`` = 1). Each start is a complete run in
+        ``starts/<name>/`` with its own checkpoints (re-running resumes the unfinished one and
+        skips the finished ones), judged on its final fit to the photos (:meth:`fit_psnr`).
+
+        1. Initial radii, at ``light.init_roughness``: ``grid.init_radius`` first, then
+           ``grid.init_candidates`` (folders ``r<radius>``); another radius must beat
+           ``init_radius``'s fit by ``grid.init_margin`` dB to replace it.
+        2. Initial roughness: each of ``light.init_roughness_candidates`` from the kept radius
+           (folders ``r<radius>_rough<value>``); it replaces the kept start if it fits better.
+
+        The kept start's ``mesh.ply``, ``sdf.npz``, ``envmap.exr`` and ``shape.json`` are copied
+        here, its log lines go to ``log.jsonl`` as they are and the other starts' with a
+        ``trial`` field (the start's folder name), and the "init_radius" (and "init_roughness")
+        decisions join its decisions. ``train_time`` and ``step`` become the race's totals.
+        Returns the kept mesh (input frame)."""
         import shutil
 
-        g = self.cfg_in.grid
+        g, lc = self.cfg_in.grid, self.cfg_in.light
         radii = [g.init_radius] + [r for r in g.init_candidates if r != g.init_radius]
-        best: tuple[float, int, ShapeTrainer] | None = None
-        fits, seconds, steps = [], 0.0, 0
-        for k, radius in enumerate(radii):
-            sub = replace(self.cfg_in, grid=replace(g, init_radius=radius, init_candidates=[]))
-            folder = self.out / "starts" / f"r{radius:g}"
-            self.log(f"[shape] start r={radius:g} ({k + 1} of {len(radii)}): a complete run "
-                     f"in {folder}")
+        roughs = [r for r in lc.init_roughness_candidates if r != lc.init_roughness]
+        runs: list[tuple[str, float, ShapeTrainer | None]] = []  # (folder name, fit, trainer)
+        seconds, steps = 0.0, 0
+
+        def start(radius: float, rough: float | None, k: int, n: int) -> tuple[str, float]:
+            nonlocal seconds, steps
+            name = f"r{radius:g}" if rough is None else f"r{radius:g}_rough{rough:g}"
+            light = lc if rough is None else replace(lc, init_roughness=rough)
+            sub = replace(self.cfg_in, grid=replace(g, init_radius=radius, init_candidates=[]),
+                          light=replace(light, init_roughness_candidates=[]))
+            folder = self.out / "starts" / name
+            self.log(f"[shape] start {name} ({k} of {n}): a complete run in {folder}")
             tr = ShapeTrainer(sub, self.scene, folder, self.device, self.progress, self.log)
             tr.run()
             fit = tr.fit_psnr()
-            fits.append(round(fit, 3))
             seconds += tr.train_time
             steps += tr.step
-            self.log(f"[shape] start r={radius:g}: final fit {fit:.2f} dB "
-                     f"({tr.train_time:.0f} s)")
-            margin = g.init_margin if best is not None and best[1] == 0 else 0.0
-            if best is None or fit > best[0] + margin:
-                best = (fit, k, tr)
-            del tr
-        assert best is not None
-        _, k, win = best
-        for name in ("mesh.ply", "sdf.npz", "envmap.exr", "shape.json"):
-            shutil.copyfile(win.out / name, self.out / name)
+            self.log(f"[shape] start {name}: final fit {fit:.2f} dB ({tr.train_time:.0f} s)")
+            runs.append((name, round(fit, 3), tr))
+            return name, fit
+
+        def keep_only(best: int) -> None:  # free the losers' models as the race goes
+            for i, (nm, ft, _) in enumerate(runs):
+                if i != best:
+                    runs[i] = (nm, ft, None)
+
+        n = len(radii) + len(roughs)
+        best_k = 0
+        for k, radius in enumerate(radii):
+            _, fit = start(radius, None, k + 1, n)
+            margin = g.init_margin if best_k == 0 else 0.0
+            if k > 0 and fit > runs[best_k][1] + margin:
+                best_k = k
+            keep_only(best_k)
+        k_radius = best_k
+        decisions = [adaptive.Decision(
+            "init_radius", radii[k_radius], [g.init_radius] + list(g.init_candidates),
+            f"best fit of {len(radii)} complete runs to {self.cfg.fit_rays} fixed training rays "
+            f"(another start must beat r={g.init_radius:g} by {g.init_margin:g} dB): "
+            + ", ".join(f"r={r:g}: {runs[i][1]:.2f} dB" for i, r in enumerate(radii)),
+            {"radii": radii, "psnr": [runs[i][1] for i in range(len(radii))],
+             "trial_steps": self.cfg.iters}, self.cfg.iters)]
+        if roughs:
+            for j, rough in enumerate(roughs):
+                k = len(radii) + j
+                _, fit = start(radii[k_radius], rough, k + 1, n)
+                if fit > runs[best_k][1]:
+                    best_k = k
+                keep_only(best_k)
+            values = [lc.init_roughness] + roughs
+            fits = [runs[k_radius][1]] + [runs[len(radii) + j][1] for j in range(len(roughs))]
+            kept = lc.init_roughness if best_k < len(radii) else roughs[best_k - len(radii)]
+            decisions.append(adaptive.Decision(
+                "init_roughness", kept, values,
+                f"best fit of {len(values)} complete runs from r={radii[k_radius]:g} "
+                f"({self.cfg.fit_rays} fixed training rays): "
+                + ", ".join(f"{v:g}: {p:.2f} dB" for v, p in zip(values, fits, strict=True)),
+                {"values": values, "psnr": fits, "radius": radii[k_radius]}, self.cfg.iters))
+        name, _, win = runs[best_k]
+        assert win is not None
+        for fname in ("mesh.ply", "sdf.npz", "envmap.exr", "shape.json"):
+            shutil.copyfile(win.out / fname, self.out / fname)
         with open(self.out / "log.jsonl", "w") as fh:
-            for radius in radii:
-                src = self.out / "starts" / f"r{radius:g}" / "log.jsonl"
+            for other, _, _ in runs:
+                src = self.out / "starts" / other / "log.jsonl"
                 for line in src.read_text().splitlines():
                     rec = json.loads(line)
-                    if radius != radii[k]:
-                        rec["trial"] = radius
+                    if other != name:
+                        rec["trial"] = other
                     fh.write(json.dumps(rec) + "\n")
         self.model, self.sw, self.cfg = win.model, win.sw, win.cfg
         self.step, self.train_time = steps, seconds
-        dec = adaptive.Decision(
-            "init_radius", radii[k], [g.init_radius] + list(g.init_candidates),
-            f"best fit of {len(radii)} complete runs to {self.cfg.fit_rays} fixed training rays "
-            f"(another start must beat r={g.init_radius:g} by {g.init_margin:g} dB): "
-            + ", ".join(f"r={r:g}: {p:.2f} dB" for r, p in zip(radii, fits, strict=True)),
-            {"radii": radii, "psnr": fits, "trial_steps": self.cfg.iters,
-             "seconds": round(seconds, 2)}, self.cfg.iters)
-        self.decisions = win.decisions + [dec]
-        self.log(dec.line())
+        decisions[0].evidence["seconds"] = round(seconds, 2)
+        self.decisions = win.decisions + decisions
+        for d in decisions:
+            self.log(d.line())
         self.write_decisions()
         summary = json.loads((self.out / "shape.json").read_text())
-        summary.update(train_time_s=seconds, race_steps=steps, init_radius=radii[k])
+        summary.update(train_time_s=seconds, race_steps=steps, init_radius=radii[k_radius],
+                       init_roughness=win.cfg.light.init_roughness)
         (self.out / "shape.json").write_text(json.dumps(summary, indent=2))
         return self.out / "mesh.ply"
 
@@ -686,7 +727,8 @@ class ShapeTrainer:
         from tqdm import tqdm
 
         cfg = self.cfg
-        if cfg.grid.init_candidates and cfg.grid.init_trial >= 1.0:
+        if (cfg.grid.init_candidates or cfg.light.init_roughness_candidates) and \
+                cfg.grid.init_trial >= 1.0:
             return self.race_starts()
         self.load_checkpoint()
         self.log(f"[shape] switches: {asdict(self.sw)}")
