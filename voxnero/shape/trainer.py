@@ -14,9 +14,11 @@ Orchestration only; the physics lives in :mod:`voxnero.shape.renderer` and the l
 * ``decisions.json`` — every adaptive decision with its setting, reason and evidence
   (:mod:`voxnero.shape.adaptive`), rewritten whenever one is taken;
 * ``sdf.npz`` — the final SDF grid (unit frame) and ``envmap.exr`` — the learned env map;
-* ``starts/r<radius>/`` — with a race of initial radii (``grid.init_trial`` = 1, the default),
-  each start's complete run (same files); the kept one's mesh, grids, env map and summary are
-  copied up, and ``log.jsonl`` holds every start's lines (the others' with a ``trial`` field).
+* ``starts/r<radius>/`` (and ``starts/r<radius>_rough<value>/`` for
+  ``light.init_roughness_candidates``) — with a race of starts (``grid.init_trial`` = 1, the
+  default), each start's complete run (same files); the kept one's mesh, grids, env map and
+  summary are copied up, and ``log.jsonl`` holds every start's lines (the others' with a
+  ``trial`` field naming the start's folder).
 """
 
 from __future__ import annotations
