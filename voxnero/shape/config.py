@@ -241,7 +241,7 @@ class ShapeConfig:
                               f"shape.light.decide_at={self.light.decide_at}",
                               fix="shorten the first look or decide the occlusion later")
         rc = self.light.init_roughness_candidates
-        if rc and not (g.init_trial >= 1.0):
+        if rc and g.init_trial < 1.0:
             raise ConfigError(f"shape.light.init_roughness_candidates={rc} needs complete runs "
                               f"(shape.grid.init_trial=1, not {g.init_trial})",
                               fix="set shape.grid.init_trial=1 or "

@@ -448,7 +448,7 @@ class ShapeTrainer:
         runs: list[tuple[str, float, ShapeTrainer | None]] = []  # (folder name, fit, trainer)
         seconds, steps = 0.0, 0
 
-        def start(radius: float, rough: float | None, k: int, n: int) -> tuple[str, float]:
+        def start(radius: float, rough: float | None, k: int, n: int) -> float:
             nonlocal seconds, steps
             name = f"r{radius:g}" if rough is None else f"r{radius:g}_rough{rough:g}"
             light = lc if rough is None else replace(lc, init_roughness=rough)
@@ -463,7 +463,7 @@ class ShapeTrainer:
             steps += tr.step
             self.log(f"[shape] start {name}: final fit {fit:.2f} dB ({tr.train_time:.0f} s)")
             runs.append((name, round(fit, 3), tr))
-            return name, fit
+            return fit
 
         def keep_only(best: int) -> None:  # free the losers' models as the race goes
             for i, (nm, ft, _) in enumerate(runs):
@@ -473,7 +473,7 @@ class ShapeTrainer:
         n = len(radii) + len(roughs)
         best_k = 0
         for k, radius in enumerate(radii):
-            _, fit = start(radius, None, k + 1, n)
+            fit = start(radius, None, k + 1, n)
             margin = g.init_margin if best_k == 0 else 0.0
             if k > 0 and fit > runs[best_k][1] + margin:
                 best_k = k
@@ -489,7 +489,7 @@ class ShapeTrainer:
         if roughs:
             for j, rough in enumerate(roughs):
                 k = len(radii) + j
-                _, fit = start(radii[k_radius], rough, k + 1, n)
+                fit = start(radii[k_radius], rough, k + 1, n)
                 if fit > runs[best_k][1]:
                     best_k = k
                 keep_only(best_k)
