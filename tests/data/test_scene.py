@@ -15,6 +15,7 @@ from voxnero.data.scene import (
     Normalisation,
     Scene,
     Split,
+    check_camera,
     choose_normalisation,
     closest_point_to_axes,
     composite_linear,
@@ -163,3 +164,91 @@ def test_scene_split_lookup_and_summary():
         sc.split("test")
     s = sc.summary()
     assert "format      blender" in s and "train: 1 views, 4x3" in s and "scale=2.0000" in s
+
+
+# --------------------------------------------------------------------------------------------
+# check_camera: the per-frame checks every loader runs
+# --------------------------------------------------------------------------------------------
+
+def _good_camera() -> tuple[np.ndarray, np.ndarray]:
+    """A pinhole 40x32 camera and a random rotation (QR of a Gaussian, det +1)."""
+    q, r = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    if np.linalg.det(q) < 0:
+        q[:, 0] *= -1
+    c2w = np.eye(4)
+    c2w[:3, :3], c2w[:3, 3] = q, (1.0, -2.0, 3.0)
+    return np.array([[48.0, 0, 21.0], [0, 46.0, 15.5], [0, 0, 1]]), c2w
+
+
+def test_check_camera_accepts_good_and_float32_cameras():
+    K, c2w = _good_camera()
+    check_camera(K, c2w, 40, 32, "frame 0", "t.json")
+    check_camera(K.astype(np.float32), c2w.astype(np.float32), 40, 32, "frame 0", "t.json")
+    check_camera(K, c2w[:3], 40, 32, "frame 0", "t.json")  # 3x4 poses have no last row
+
+
+def _edit(K: np.ndarray, c2w: np.ndarray, defect: str) -> None:
+    """Spoil one camera in place by ``defect``."""
+    if defect == "scaled":
+        c2w[:3, :3] *= 3
+    elif defect == "sheared":
+        c2w[0, 1] += 0.01
+    elif defect == "singular":
+        c2w[:3, :3] = 0
+    elif defect == "mirror":
+        c2w[:3, 0] *= -1
+    elif defect == "transposed":
+        c2w[:] = c2w.T.copy()
+    elif defect == "nan_pose":
+        c2w[1, 3] = np.nan
+    elif defect == "zero_focal":
+        K[0, 0] = 0
+    elif defect == "negative_focal":
+        K[1, 1] = -46
+    elif defect == "inf_focal":
+        K[0, 0] = np.inf
+    elif defect == "pp_outside":
+        K[0, 2] = 41.0
+    elif defect == "pp_on_edge":
+        K[1, 2] = 0.0
+    elif defect == "not_pinhole":
+        K[2] = (0, 0, 2)
+
+
+@pytest.mark.parametrize("defect, words", [
+    ("scaled", "not orthonormal"), ("sheared", "not orthonormal"), ("singular", "singular"),
+    ("mirror", "mirror"), ("transposed", "transposed"), ("nan_pose", "non-finite"),
+    ("zero_focal", "focal lengths"), ("negative_focal", "focal lengths"),
+    ("inf_focal", "non-finite"), ("pp_outside", "principal point"),
+    ("pp_on_edge", "principal point"), ("not_pinhole", "pinhole")])
+def test_check_camera_refuses_each_defect_naming_file_and_frame(defect, words):
+    K, c2w = _good_camera()
+    _edit(K, c2w, defect)
+    with pytest.raises(DataError) as e:
+        check_camera(K, c2w, 40, 32, "frame 7 (./train/r_7)", "transforms_train.json")
+    msg = str(e.value)
+    assert msg.startswith("transforms_train.json: frame 7 (./train/r_7): ") and words in msg, msg
+    assert e.value.fix
+
+
+def test_check_camera_names_the_intrinsics_file_for_intrinsics():
+    K, c2w = _good_camera()
+    K[0, 0] = -1
+    with pytest.raises(DataError, match="^cameras.txt: image 3"):
+        check_camera(K, c2w, 40, 32, "image 3 (a.png)", "images.txt", intrinsics_path="cameras.txt")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.0, 2e-3))
+def test_check_camera_tolerance_on_rotation_scale(e):
+    """A rotation scaled by 1 + e passes iff (1 + e)^2 - 1 <= ORTHONORMAL_TOL."""
+    from voxnero.data.scene import ORTHONORMAL_TOL
+
+    K, c2w = _good_camera()
+    c2w[:3, :3] *= 1 + e
+    if (1 + e) ** 2 - 1 <= ORTHONORMAL_TOL * (1 - 1e-9):
+        check_camera(K, c2w, 40, 32, "frame 0", "t.json")
+    elif (1 + e) ** 2 - 1 > ORTHONORMAL_TOL * (1 + 1e-9):
+        with pytest.raises(DataError, match="not orthonormal"):
+            check_camera(K, c2w, 40, 32, "frame 0", "t.json")

@@ -32,6 +32,7 @@ import torch
 from voxnero.cameras.cameras import opengl_to_opencv
 from voxnero.data.scene import (
     Scene,
+    check_camera,
     check_pose,
     choose_normalisation,
     image_size,
@@ -82,6 +83,64 @@ def _resolve_image(root: Path, file_path: str, json_path: Path, i: int) -> Path:
                     fix="restore the image or correct file_path")
 
 
+def _focal_from_angle(g: dict[str, Any], key: str, size: int, where: str, path: Path) -> float:
+    """Focal length in pixels from the field of view ``g[key]`` (radians) across ``size`` pixels.
+
+    Raises:
+        DataError: the angle is not a number in (0, pi) (0 and pi have no pinhole camera).
+    """
+    try:
+        angle = float(g[key])
+    except (TypeError, ValueError):
+        angle = math.nan
+    if not 0.0 < angle < math.pi:
+        raise DataError(f"{where}: {key}={g[key]!r} is not a field of view in (0, pi) radians "
+                        "(0 to 180 degrees)", path=path,
+                        fix=f"give {key} in radians, e.g. 0.6911 for 40 degrees")
+    return 0.5 * size / math.tan(0.5 * angle)
+
+
+def frame_intrinsics(g: dict[str, Any], w: int, h: int, where: str, path: Path) -> np.ndarray:
+    """``(3, 3)`` intrinsics of one frame from NeRF-synthetic / instant-ngp keys.
+
+    Args:
+        g: the file's global keys updated by the frame's own (``fl_x``, ``fl_y``, ``cx``, ``cy``,
+            ``camera_angle_x``, ``camera_angle_y``).
+        w: image width in pixels.
+        h: image height in pixels.
+        where: the frame, for errors (``"frame 3 (./train/r_3)"``).
+        path: the transforms file, for errors.
+
+    Returns:
+        ``K`` in pixels (pixel centre +0.5): ``fl_x`` or the focal of ``camera_angle_x``,
+        ``fl_y`` / ``camera_angle_y`` or ``fx``, principal point ``(cx, cy)`` or the image centre.
+        Check it with :func:`voxnero.data.scene.check_camera`.
+
+    Raises:
+        DataError: no focal length, non-numeric values, or an angle outside (0, pi).
+    """
+    try:
+        if "fl_x" in g:
+            fx = float(g["fl_x"])
+        elif "camera_angle_x" in g:
+            fx = _focal_from_angle(g, "camera_angle_x", w, where, path)
+        else:
+            raise DataError(f"{where}: no focal length (camera_angle_x or fl_x)", path=path,
+                            fix="add camera_angle_x (radians) or fl_x (pixels)")
+        if "fl_y" in g:
+            fy = float(g["fl_y"])
+        elif "camera_angle_y" in g:
+            fy = _focal_from_angle(g, "camera_angle_y", h, where, path)
+        else:
+            fy = fx
+        cx = float(g.get("cx", 0.5 * w))
+        cy = float(g.get("cy", 0.5 * h))
+    except (TypeError, ValueError) as e:
+        raise DataError(f"{where}: bad intrinsics ({e})", path=path,
+                        fix="intrinsics must be numbers") from None
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
 def _parse_split(root: Path, split: str) -> dict[str, Any]:
     """Frames of one split: paths, names, K (N,3,3), OpenCV c2w (N,4,4), width, height."""
     jpath = root / f"transforms_{split}.json"
@@ -96,34 +155,21 @@ def _parse_split(root: Path, split: str) -> dict[str, Any]:
             raise DataError(f"frame {i} lacks 'file_path' or 'transform_matrix'", path=jpath,
                             fix="every frame needs both keys")
         p = _resolve_image(root, fr["file_path"], jpath, i)
-        m = check_pose(fr["transform_matrix"], (4, 4), f"frame {i} ({fr['file_path']})", jpath)
+        where = f"frame {i} ({fr['file_path']})"
+        m = check_pose(fr["transform_matrix"], (4, 4), where, jpath)
         g = {**data, **fr}  # per-frame keys win
         if "w" in g and "h" in g:
-            w, h = int(g["w"]), int(g["h"])
+            try:
+                w, h = int(g["w"]), int(g["h"])
+            except (TypeError, ValueError, OverflowError):
+                raise DataError(f"{where}: image size w={g['w']!r} h={g['h']!r} is not two "
+                                "integers", path=jpath,
+                                fix="give w and h in pixels, or drop them to read the size from "
+                                    "the image") from None
         else:
             w, h = image_size(p)
-        try:
-            if "fl_x" in g:
-                fx = float(g["fl_x"])
-            elif "camera_angle_x" in g:
-                fx = 0.5 * w / math.tan(0.5 * float(g["camera_angle_x"]))
-            else:
-                raise DataError(f"frame {i}: no focal length (camera_angle_x or fl_x)",
-                                path=jpath, fix="add camera_angle_x (radians) or fl_x (pixels)")
-            if "fl_y" in g:
-                fy = float(g["fl_y"])
-            elif "camera_angle_y" in g:
-                fy = 0.5 * h / math.tan(0.5 * float(g["camera_angle_y"]))
-            else:
-                fy = fx
-            cx = float(g.get("cx", 0.5 * w))
-            cy = float(g.get("cy", 0.5 * h))
-        except (TypeError, ValueError) as e:
-            raise DataError(f"frame {i}: bad intrinsics ({e})", path=jpath,
-                            fix="intrinsics must be numbers") from None
-        if not all(math.isfinite(v) for v in (fx, fy, cx, cy)) or fx <= 0 or fy <= 0:
-            raise DataError(f"frame {i}: invalid intrinsics fx={fx} fy={fy} cx={cx} cy={cy}",
-                            path=jpath, fix="focal lengths must be finite and positive")
+        K = frame_intrinsics(g, w, h, where, jpath)
+        check_camera(K, opengl_to_opencv(m), w, h, where, jpath)
         try:
             dist = [float(g.get(k, 0.0)) for k in ("k1", "k2", "p1", "p2")]
             extra = [float(g.get(k, 0.0)) for k in ("k3", "k4")]
@@ -137,7 +183,7 @@ def _parse_split(root: Path, split: str) -> dict[str, Any]:
         paths.append(p)
         names.append(p.stem)
         dists.append(dist)
-        Ks.append([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
+        Ks.append(K)
         c2ws.append(opengl_to_opencv(m))
         sizes.append((w, h))
     if len(set(sizes)) > 1:

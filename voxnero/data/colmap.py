@@ -33,6 +33,7 @@ import torch
 
 from voxnero.data.scene import (
     Scene,
+    check_camera,
     choose_normalisation,
     image_size,
     load_image_stack,
@@ -463,6 +464,8 @@ def load_colmap(root: str | Path, splits=("train",), white_bg: bool = False, rad
         c2w = np.eye(4)
         c2w[:3, :3] = R.T
         c2w[:3, 3] = -R.T @ im.tvec
+        check_camera(K, c2w, cam.width, cam.height, f"image {im.id} ({im.name})",
+                     _model_file(mdir, "images"), intrinsics_path=_model_file(mdir, "cameras"))
         Ks[im.name], dists[im.name], c2ws[im.name] = K, dist, c2w
         sizes[im.name] = (cam.width, cam.height)
     names_all = [im.name for im in order]

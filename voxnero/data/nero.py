@@ -28,6 +28,7 @@ import numpy as np
 from voxnero.cameras.cameras import w2c_to_c2w
 from voxnero.data.scene import (
     Scene,
+    check_camera,
     check_pose,
     choose_normalisation,
     image_size,
@@ -78,9 +79,6 @@ def _read_camera(path: Path) -> tuple[np.ndarray, np.ndarray]:
                         fix="the file must hold a pickled [pose (3x4 world-to-camera), K (3x3)]")
     pose = check_pose(obj[0], (3, 4), "pose", path)
     K = check_pose(obj[1], (3, 3), "intrinsics K", path)
-    if K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise DataError(f"intrinsics have non-positive focal lengths {K[0, 0]}, {K[1, 1]}",
-                        path=path, fix="fix K in the camera pickle")
     return pose, K
 
 
@@ -124,6 +122,9 @@ def load_nero(root: str | Path, splits=("train",), white_bg: bool = False, radiu
     w, h = image_size(paths[all_ids[0]])
     c2w_all = np.stack([w2c_to_c2w(cams[k][0]) for k in all_ids])
     K_all = np.stack([cams[k][1] for k in all_ids])
+    for i, k in enumerate(all_ids):
+        check_camera(K_all[i], c2w_all[i], w, h, f"view {i} ({k}.png)",
+                     root / f"{k}-camera.pkl")
     norm, rec = choose_normalisation(c2w_all, K_all, w, h, bbox=bbox, radius=radius,
                                      center=center)
     out, any_alpha = {}, False

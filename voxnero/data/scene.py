@@ -402,6 +402,87 @@ def check_pose(mat, shape: tuple[int, int], where: str, path: Path) -> np.ndarra
     return m
 
 
+ORTHONORMAL_TOL = 1e-3
+"""Largest entry of ``|R^T R - I|`` accepted for a camera rotation. Poses stored as float32 and
+printed with 6-7 digits are off by ~1e-7; a rotation scaled or sheared by any visible amount
+is off by far more (scaled x3: 8)."""
+
+_POSE_FIX = ("fix or remove this frame's pose: a camera-to-world matrix is [R | t] with R a "
+             "rotation (orthonormal columns, determinant +1) and, for 4x4, last row [0, 0, 0, 1]")
+
+
+def check_camera(K, c2w, width: int, height: int, where: str, path: str | Path,
+                 intrinsics_path: str | Path | None = None) -> None:
+    """Refuse a camera that cannot make rays; every loader calls this for every frame, so
+    ``voxnero info`` and the commands that train run the same checks.
+
+    A camera passes when its pose is finite with an orthonormal, right-handed rotation
+    (``|R^T R - I| <`` :data:`ORTHONORMAL_TOL`, ``det R > 0``; a 4x4 pose ends in
+    ``[0, 0, 0, 1]``), its focal lengths are finite and > 0, its principal point lies strictly
+    inside the image and ``K``'s last row is ``[0, 0, 1]``. Together these put both halves of the
+    field of view, ``atan(cx / fx)`` and ``atan((W - cx) / fx)``, in (0°, 90°), so the field of
+    view is in (0°, 180°). (A field of view given as an angle, ``camera_angle_x``, is checked by
+    the Blender loader before it becomes a focal length.)
+
+    Args:
+        K: ``(3, 3)`` intrinsics in pixels (pixel centre +0.5).
+        c2w: ``(4, 4)`` or ``(3, 4)`` OpenCV camera-to-world in the input frame.
+        width: image width in pixels.
+        height: image height in pixels.
+        where: the frame, named in the error: index and image, e.g. ``"frame 3 (./train/r_3)"``.
+        path: the pose file named in the error.
+        intrinsics_path: the file holding the intrinsics when it is not ``path`` (COLMAP's
+            cameras file).
+
+    Raises:
+        DataError: naming ``path``, ``where``, what is wrong and the fix.
+    """
+    K = np.asarray(K, dtype=np.float64)
+    c2w = np.asarray(c2w, dtype=np.float64)
+    kpath = path if intrinsics_path is None else intrinsics_path
+    if not (width >= 1 and height >= 1):
+        raise DataError(f"{where}: image size {width}x{height} is empty", path=kpath,
+                        fix="give the image size in pixels (w, h >= 1) or drop w/h to read it "
+                            "from the image")
+    if not np.isfinite(K).all():
+        raise DataError(f"{where}: intrinsics have non-finite values (NaN/Inf)", path=kpath,
+                        fix="give finite focal lengths and principal point")
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if not (fx > 0 and fy > 0):
+        raise DataError(f"{where}: focal lengths fx={fx:g} fy={fy:g} must be > 0", path=kpath,
+                        fix="give focal lengths in pixels (> 0), or a field of view in (0, pi) "
+                            "radians")
+    if np.abs(K[2] - (0.0, 0.0, 1.0)).max() > 1e-6 or abs(K[1, 0]) > 1e-6 * fy:
+        raise DataError(f"{where}: intrinsics {K.round(6).tolist()} are not a pinhole matrix "
+                        "[[fx, s, cx], [0, fy, cy], [0, 0, 1]]", path=kpath,
+                        fix="store K in pixels with last row [0, 0, 1]")
+    if not (0 < cx < width and 0 < cy < height):
+        raise DataError(f"{where}: principal point ({cx:g}, {cy:g}) lies outside the "
+                        f"{width}x{height} image", path=kpath,
+                        fix="give cx in (0, w) and cy in (0, h), in pixels (the image centre "
+                            "is (w/2, h/2))")
+    if not np.isfinite(c2w).all():
+        raise DataError(f"{where}: pose has non-finite values (NaN/Inf)", path=path,
+                        fix=_POSE_FIX)
+    R = c2w[:3, :3]
+    det = float(np.linalg.det(R))
+    if abs(det) < 1e-6:
+        raise DataError(f"{where}: pose is singular (rotation determinant {det:.3g})",
+                        path=path, fix=_POSE_FIX)
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    if err > ORTHONORMAL_TOL:
+        lengths = ", ".join(f"{v:.4g}" for v in np.linalg.norm(R, axis=0))
+        raise DataError(f"{where}: rotation is not orthonormal (|R^T R - I| = {err:.3g}; "
+                        f"column lengths {lengths}; scaled or sheared?)", path=path,
+                        fix=_POSE_FIX)
+    if det < 0:
+        raise DataError(f"{where}: rotation has determinant {det:.4g} (a mirror, not a "
+                        "rotation)", path=path, fix=_POSE_FIX + "; flip one axis back")
+    if c2w.shape == (4, 4) and np.abs(c2w[3] - (0.0, 0.0, 0.0, 1.0)).max() > ORTHONORMAL_TOL:
+        raise DataError(f"{where}: last row of the pose is {c2w[3].round(6).tolist()}, not "
+                        "[0, 0, 0, 1] (a transposed matrix?)", path=path, fix=_POSE_FIX)
+
+
 def make_split(name: str, encoded: np.ndarray, K: np.ndarray, c2w_input: np.ndarray,
                norm: Normalisation, names: list[str], white_bg: bool,
                masks: np.ndarray | None = None, depth_input: np.ndarray | None = None

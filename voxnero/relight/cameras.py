@@ -5,7 +5,8 @@
 * :func:`transforms_cameras`: a NeRF-synthetic ``transforms*.json`` on its own (images need not
   exist): ``transform_matrix`` is OpenGL/Blender camera-to-world, converted once with
   ``voxnero.cameras.cameras.opengl_to_opencv``; focal length from ``fl_x``/``fl_y`` or
-  ``camera_angle_x``; size from ``w``/``h`` (default 800).
+  ``camera_angle_x``; size from ``w``/``h`` (default 800); intrinsics parsed and every camera
+  checked as the Blender loader does (``frame_intrinsics``, ``check_camera``).
 * :func:`orbit_cameras`: a turntable of N frames around an up axis at one elevation, looking at
   a centre, without roll.
 """
@@ -19,6 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from voxnero.cameras.cameras import Cameras, look_at_opencv, opengl_to_opencv
+from voxnero.data.blender import frame_intrinsics
+from voxnero.data.scene import check_camera, check_pose
 from voxnero.errors import DataError
 
 
@@ -67,23 +70,22 @@ def transforms_cameras(path: str | Path) -> tuple[Cameras, list[str]]:
         raise DataError("no frames", path=path, fix="add frames with transform_matrix")
     Ks, c2ws, names, sizes = [], [], [], set()
     for i, fr in enumerate(frames):
+        if not isinstance(fr, dict):
+            raise DataError(f"frame {i} is not a mapping", path=path,
+                            fix="every frame needs transform_matrix (and file_path)")
         g = {**data, **fr}
-        w, h = int(g.get("w", 800)), int(g.get("h", g.get("w", 800)))
-        if "fl_x" in g:
-            fx = float(g["fl_x"])
-        elif "camera_angle_x" in g:
-            fx = 0.5 * w / math.tan(0.5 * float(g["camera_angle_x"]))
-        else:
-            raise DataError(f"frame {i}: no focal length", path=path,
-                            fix="add camera_angle_x (radians) or fl_x (pixels)")
-        fy = float(g.get("fl_y", fx))
-        m = np.asarray(fr.get("transform_matrix"), dtype=np.float64)
-        if m.shape != (4, 4) or not np.isfinite(m).all():
-            raise DataError(f"frame {i}: transform_matrix must be a finite 4x4 matrix",
-                            path=path, fix="fix the pose")
-        Ks.append([[fx, 0, float(g.get("cx", 0.5 * w))], [0, fy, float(g.get("cy", 0.5 * h))],
-                   [0, 0, 1]])
-        c2ws.append(opengl_to_opencv(m))
+        where = f"frame {i} ({fr.get('file_path', f'r_{i}')})"
+        try:
+            w, h = int(g.get("w", 800)), int(g.get("h", g.get("w", 800)))
+        except (TypeError, ValueError, OverflowError):
+            raise DataError(f"{where}: image size w={g.get('w')!r} h={g.get('h')!r} is not two "
+                            "integers", path=path, fix="give w and h in pixels") from None
+        K = frame_intrinsics(g, w, h, where, path)
+        m = check_pose(fr.get("transform_matrix"), (4, 4), where, path)
+        c2w = opengl_to_opencv(m)
+        check_camera(K, c2w, w, h, where, path)
+        Ks.append(K)
+        c2ws.append(c2w)
         names.append(Path(str(fr.get("file_path", f"r_{i}"))).stem or f"r_{i}")
         sizes.add((w, h))
     if len(sizes) > 1:
