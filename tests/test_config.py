@@ -2,12 +2,27 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
+import typing
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from voxnero.config import from_dict, parse_overrides, resolve, save_resolved, to_dict
+from voxnero.config import (
+    Range,
+    available_presets,
+    check_numbers,
+    from_dict,
+    parse_overrides,
+    resolve,
+    save_resolved,
+    to_dict,
+)
 from voxnero.errors import ConfigError
 
 
@@ -70,3 +85,126 @@ def test_resolve_from_file_and_save(tmp_path):
 def test_missing_preset_lists_available():
     with pytest.raises(ConfigError, match="not found"):
         resolve(Outer, "shape", "no_such_preset", [])
+
+
+# --------------------------------------------------------------------------------------------
+# numbers: finite and inside each class's RANGES table (check_numbers)
+# --------------------------------------------------------------------------------------------
+
+def _sections() -> dict[str, type]:
+    from voxnero.batch.config import BatchConfig
+    from voxnero.commands.info import InfoOptions
+    from voxnero.eval.config import EvalConfig
+    from voxnero.material.config import MaterialConfig
+    from voxnero.relight.render import RelightConfig
+    from voxnero.shape.config import ShapeConfig
+    from voxnero.synth.config import SynthConfig
+
+    return {"shape": ShapeConfig, "material": MaterialConfig, "eval": EvalConfig,
+            "batch": BatchConfig, "synth": SynthConfig, "relight": RelightConfig,
+            "info": InfoOptions}
+
+
+def _numeric(tp) -> bool:
+    """int/float, optional or in a list."""
+    if tp in (int, float):
+        return True
+    return any(_numeric(a) for a in typing.get_args(tp) if a is not type(None))
+
+
+def numeric_fields() -> list[tuple[str, type, dataclasses.Field]]:
+    """``(dotted key, owning class, field)`` of every numeric setting of every command."""
+    out, todo = [], [(k, c) for k, c in _sections().items()]
+    while todo:
+        where, cls = todo.pop()
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            if dataclasses.is_dataclass(hints[f.name]):
+                todo.append((f"{where}.{f.name}", hints[f.name]))
+            elif _numeric(hints[f.name]):
+                out.append((f"{where}.{f.name}", cls, f))
+    return sorted(out, key=lambda t: t[0])
+
+
+NUMERIC = numeric_fields()
+
+
+def test_every_numeric_setting_has_a_range_and_every_range_a_field():
+    missing = [k for k, cls, f in NUMERIC if f.name not in getattr(cls, "RANGES", {})]
+    assert not missing, f"numeric settings without a RANGES entry: {missing}"
+    for _, cls, _ in NUMERIC:
+        assert set(cls.RANGES) <= {f.name for f in dataclasses.fields(cls)}, cls
+    assert len(NUMERIC) > 120
+
+
+def test_defaults_and_every_preset_are_in_range():
+    seen = {cls for _, cls, _ in NUMERIC}
+    for cls in seen:
+        check_numbers(cls())
+    for preset in available_presets():
+        for name, cls in _sections().items():
+            if name != "info":
+                resolve(cls, name, preset, [])
+
+
+def _out_of_range(r: Range) -> list[float]:
+    bad = [math.nan, math.inf, -math.inf]
+    if r.lo is not None:
+        bad += [r.lo if r.lo_open else r.lo - 1]
+    if r.hi is not None:
+        bad += [r.hi if r.hi_open else r.hi * 2 + 1]
+    return [v for v in bad if v not in r.also]
+
+
+@dataclass
+class Ranged:
+    RANGES: ClassVar[dict[str, Range]] = {"lr": Range(0.0, 1.0), "n": Range(1, None),
+                                          "views": Range(1, None, also=(-1,)),
+                                          "eps": Range(0.0, 1.0, lo_open=True)}
+    lr: float = 0.1
+    n: int = 4
+    views: int = -1
+    eps: float = 1e-3
+    levels: list[float] = field(default_factory=lambda: [0.5])
+    opt: float | None = None
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("lr", math.nan, "lr=nan is not a finite number"), ("lr", 2.0, "lr=2.0 is out of range"),
+    ("n", 0, "n=0 is out of range (must be >= 1)"), ("views", 0, "must be >= 1 or -1"),
+    ("eps", 0.0, "must be in (0, 1]"), ("levels", [0.5, math.inf], "levels=[0.5, inf]"),
+    ("opt", math.nan, "opt=nan")])
+def test_check_numbers_names_key_value_and_fix(key, value, words):
+    with pytest.raises(ConfigError) as e:
+        from_dict(Ranged, {key: value}, "sec")
+    assert f"sec.{words}" in str(e.value) or words in str(e.value), str(e.value)
+    assert e.value.fix and ("the default" in e.value.fix or "leave" in e.value.fix)
+
+
+def test_check_numbers_accepts_boundaries_and_special_values():
+    from_dict(Ranged, {"lr": 0.0, "views": -1, "eps": 1.0, "n": 10 ** 6, "opt": 3.0})
+    from_dict(Ranged, {"lr": 1.0, "views": 7})
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.sampled_from(NUMERIC), st.data())
+def test_any_non_finite_or_out_of_range_setting_is_refused(entry, data):
+    """Every numeric key of every command: NaN, ±Inf and values just past its bounds raise a
+    ConfigError naming the dotted key, whatever the other settings are."""
+    key, cls, f = entry
+    r = cls.RANGES[f.name]
+    value = data.draw(st.sampled_from(_out_of_range(r)))
+    section, *rest = key.split(".")
+    name = ".".join(rest)
+    tp = typing.get_type_hints(cls)[f.name]
+    is_list = list in {typing.get_origin(t) for t in (tp, *typing.get_args(tp))}
+    override = f"{name}=[{value!r}]" if is_list else f"{name}={value!r}"
+    cfg_cls = _sections()[section]
+    with pytest.raises(ConfigError) as e:
+        if section == "info":
+            from_dict(cfg_cls, parse_overrides([override], None))
+        else:
+            resolve(cfg_cls, section, "tiny", [override])
+    assert (name if section == "info" else key) in str(e.value), str(e.value)
+    assert "is not a finite number" in str(e.value) or "out of range" in str(e.value) or \
+        "must be an integer" in str(e.value), str(e.value)

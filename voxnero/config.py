@@ -2,7 +2,10 @@
 
 A preset file (``configs/<name>.yaml``) is a mapping of sections, one per command stage
 (``shape:``, ``material:``, ``synth:`` ...). Each section is parsed into that stage's dataclass
-with :func:`from_dict`, which rejects unknown keys. Overrides are dotted paths into the preset
+with :func:`from_dict`, which rejects unknown keys and checks every number (:func:`check_numbers`:
+finite, and inside the class's ``RANGES`` table) before the class's own ``validate()``; a
+command resolves its config before it reads any data, so a bad setting stops it before any
+work. Overrides are dotted paths into the preset
 (``shape.iters=3000``); inside a single-stage command the section may be left out
 (``iters=3000`` means ``shape.iters=3000`` for ``voxnero shape``). Values are parsed as YAML
 scalars (``1e-3``, ``true``, ``[64, 128]``). The resolved config is written beside every output
@@ -12,6 +15,7 @@ with :func:`save_resolved` so that a run can be repeated exactly.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from pathlib import Path
@@ -148,13 +152,15 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
                 return float(value)
             except ValueError:
                 pass
-        raise ConfigError(f"{where} must be a number, got {value!r}")
+        raise ConfigError(f"{where} must be a number, got {value!r}",
+                          fix=f"write e.g. {where}=0.5 or {where}=1e-3")
     if tp is int:
         if isinstance(value, int) and not isinstance(value, bool):
             return value
         if isinstance(value, float) and value.is_integer():
             return int(value)
-        raise ConfigError(f"{where} must be an integer, got {value!r}")
+        raise ConfigError(f"{where} must be an integer, got {value!r}",
+                          fix=f"write a whole number, e.g. {where}=100")
     if tp is str:
         if isinstance(value, (str, int, float)) and not isinstance(value, bool):
             return str(value)
@@ -162,10 +168,121 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
     return value
 
 
-def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
-    """Build dataclass ``cls`` from ``data``, checking names and types.
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """The values a numeric config key accepts: ``lo <= v <= hi`` (``<`` where open), or one
+    of the special values ``also`` (e.g. -1 = "all").
 
-    Unknown keys raise :class:`ConfigError` listing the valid ones.
+    Config dataclasses list theirs in a class attribute ``RANGES: ClassVar[dict[str, Range]]``
+    (field name -> Range; a list-valued field applies it to every element), checked by
+    :func:`check_numbers`.
+    """
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    also: tuple[float, ...] = ()
+
+    def __contains__(self, v: float) -> bool:
+        if v in self.also:
+            return True
+        if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo):
+            return False
+        return not (self.hi is not None and (v >= self.hi if self.hi_open else v > self.hi))
+
+    def __str__(self) -> str:
+        lo, hi = _num(self.lo), _num(self.hi)
+        if self.lo is not None and self.hi is not None:
+            txt = f"in {'(' if self.lo_open else '['}{lo}, {hi}{')' if self.hi_open else ']'}"
+        elif self.lo is not None:
+            txt = f"{'>' if self.lo_open else '>='} {lo}"
+        elif self.hi is not None:
+            txt = f"{'<' if self.hi_open else '<='} {hi}"
+        else:
+            txt = ""
+        return txt + "".join(f" or {_num(a)}" for a in self.also)
+
+
+def _num(v: float | None) -> str:
+    """``1e+09`` -> ``1e9``: bounds as a user would type them."""
+    return f"{v:g}".replace("e+0", "e").replace("e+", "e") if v is not None else ""
+
+
+def at_least(lo: float, hi: float | None = None, also: tuple[float, ...] = ()) -> Range:
+    """``lo <= v`` (``<= hi`` if given), or one of ``also``."""
+    return Range(lo, hi, also=also)
+
+
+def positive(hi: float | None = None) -> Range:
+    """``0 < v`` (``<= hi`` if given)."""
+    return Range(0.0, hi, lo_open=True)
+
+
+FRACTION = Range(0.0, 1.0)
+"""A fraction of ``iters`` (or any share) in [0, 1]."""
+WEIGHT = Range(0.0, 1e6)
+"""A loss weight or regulariser strength: >= 0 (0 = off); 1e6 as a bound on typos."""
+LEARNING_RATE = Range(0.0, 1.0)
+"""An Adam learning rate: Adam moves each parameter by about lr per step, and every parameter
+here lives in units of order 1, so lr > 1 only throws them about (0 freezes a group)."""
+SEED = Range(0.0, 2.0 ** 32 - 1)
+"""A random seed (numpy and torch both take [0, 2³² − 1])."""
+THREADS = Range(0.0, 4096.0)
+"""torch CPU threads (0 = torch's default)."""
+BIG_COUNT = 1e9
+"""Upper bound of counts such as rays per batch or cached pixels: a larger value is a typo
+(it could not fit in memory)."""
+
+
+def check_numbers(obj: Any, where: str = "") -> None:
+    """Refuse a non-finite float, or a number outside its ``RANGES`` entry, in any field of
+    the dataclass ``obj`` (list elements included).
+
+    Not recursive: :func:`from_dict` calls it for every nested section it builds (defaults of
+    sections a preset leaves out are in range by construction; tests check it).
+
+    Args:
+        obj: a config dataclass instance.
+        where: its dotted section (``"shape.optim"``), for messages.
+
+    Raises:
+        ConfigError: naming the key, the value, the allowed range and the default as the fix.
+    """
+    ranges: dict[str, Range] = getattr(type(obj), "RANGES", {})
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        items = value if isinstance(value, (list, tuple)) else [value]
+        for v in items:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                continue
+            r = ranges.get(f.name)
+            finite = not (isinstance(v, float) and not math.isfinite(v))
+            if finite and (r is None or v in r):
+                continue
+            key = f"{where}.{f.name}" if where else f.name
+            bounds = f" {r}" if r is not None and str(r) else ""
+            what = "is not a finite number" if not finite else f"is out of range (must be{bounds})"
+            default = _default(f)
+            example = (f"leave {key} out" if default is None
+                       else f"e.g. {key}={default!r} (the default)")
+            raise ConfigError(f"{key}={value!r} {what}",
+                              fix=f"give a finite number{bounds}; {example}")
+
+
+def _default(f: dataclasses.Field) -> Any:
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return to_dict(f.default_factory())
+    return None
+
+
+def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
+    """Build dataclass ``cls`` from ``data``, checking names, types and numbers.
+
+    Unknown keys raise :class:`ConfigError` listing the valid ones; then every number is checked
+    (:func:`check_numbers`) and the class's own ``validate()`` (cross-field rules) runs.
     """
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
@@ -178,6 +295,7 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
     for k, v in data.items():
         kwargs[k] = _coerce(hints[k], v, f"{where}.{k}" if where else k)
     obj = cls(**kwargs)
+    check_numbers(obj, where)
     validate = getattr(obj, "validate", None)
     if callable(validate):
         validate()

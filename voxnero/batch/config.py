@@ -7,14 +7,21 @@ Every key can be overridden on the command line with the ``batch.`` prefix
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
+from voxnero.config import Range, at_least
 from voxnero.errors import ConfigError
 
 
 @dataclass
 class BatchConfig:
     """Ray resources and fault tolerance of one scene's task."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "num_cpus": Range(0.0, 1e6), "num_gpus": Range(0.0, 1e6), "memory_mb": at_least(0),
+        "max_retries": at_least(0, 1000), "lock_timeout_s": Range(0.0), "local_cpus": at_least(0),
+        "object_store_mb": at_least(1)}
+    """Allowed values (:func:`voxnero.config.check_numbers`), checked before ``validate``."""
 
     num_cpus: float = 1.0
     """CPUs Ray reserves for one scene's task (the stages use ``shape.threads`` threads)."""
@@ -44,13 +51,8 @@ class BatchConfig:
     (~1.2 GB RSS summed here). A cluster started with ``ray start --head`` has it by default."""
 
     def validate(self) -> None:
-        """Check ranges; raise :class:`ConfigError` with the fix."""
+        """Check what ``RANGES`` cannot (single values are checked before); raise
+        :class:`ConfigError` with the fix."""
         if self.num_cpus <= 0 and self.num_gpus <= 0:
             raise ConfigError("batch.num_cpus and batch.num_gpus are both 0",
                               fix="a scene's task needs at least batch.num_cpus > 0")
-        if self.num_cpus < 0 or self.num_gpus < 0 or self.memory_mb < 0:
-            raise ConfigError("batch.num_cpus, batch.num_gpus and batch.memory_mb must be >= 0")
-        if self.local_cpus < 0:
-            raise ConfigError("batch.local_cpus must be >= 0 (0: all cores)")
-        if self.max_retries < 0:
-            raise ConfigError("batch.max_retries must be >= 0 (0: no retry)")

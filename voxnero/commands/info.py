@@ -15,12 +15,12 @@ import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import yaml
 
 from voxnero.cli import add_common
-from voxnero.config import from_dict, parse_overrides
+from voxnero.config import Range, from_dict, parse_overrides, positive
 from voxnero.errors import DataError
 
 NAME = "info"
@@ -30,6 +30,9 @@ HELP = "describe a scene (format, splits, cameras, normalisation) or a run folde
 @dataclass
 class InfoOptions:
     """Scene-loading options accepted as ``key=value`` by ``voxnero info``."""
+
+    RANGES: ClassVar[dict[str, Range]] = {"radius": positive(), "center": Range(),
+                                          "bbox": Range()}
 
     splits: list[str] | None = None
     white_bg: bool = False

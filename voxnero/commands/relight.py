@@ -14,7 +14,10 @@ about the up axis), ``views``, ``seed`` (section ``relight:`` of the preset).
 Writes into ``--out``: ``<view>.png`` (sRGB, round(255·sRGB(clip(L))) like the dev data),
 ``exr/<view>.exr`` (linear), ``config.yaml`` and ``relight.json`` (timings and, when the
 camera split has photos, PSNR against them: whole image and fully covered pixels, raw and with
-a per-channel scale fitted on the object's unclipped pixels).
+a per-channel scale fitted on the object's unclipped pixels). No output holds NaN/Inf: an env
+map too bright for float32 at the given ``exposure`` is refused before rendering, a pixel that
+still comes out non-finite is written as 0 with a warning (and counted in ``relight.json``), and
+a non-finite number in ``relight.json`` is written as a string ("inf").
 """
 
 from __future__ import annotations
@@ -74,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
     from voxnero.config import resolve, save_resolved
     from voxnero.device import default_device
     from voxnero.eval.images import fit_channel_scale, psnr
+    from voxnero.eval.report import json_safe
     from voxnero.io.color import linear_to_srgb
     from voxnero.io.exr import write_exr
     from voxnero.io.images import write_png
@@ -111,6 +115,11 @@ def run(args: argparse.Namespace) -> int:
         tv = time.perf_counter()
         r = relighter.render(cams_r, i, gen, progress=bar)
         rgb = r["rgb"].numpy()
+        bad = ~np.isfinite(rgb).all(-1)
+        if bad.any():  # never write NaN/Inf (load_env bounds the light; this is the last guard)
+            rgb = np.where(bad[..., None], 0.0, rgb).astype(np.float32)
+            bar.write(f"[relight] warning: view {names[i]}: {int(bad.sum())} pixel(s) with "
+                      "NaN/Inf radiance written as 0")
         srgb = np.asarray(linear_to_srgb(np.clip(rgb, 0.0, 1.0)))
         if cfg.png:
             write_png(out / f"{names[i]}.png", srgb)
@@ -118,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
             write_exr(out / "exr" / f"{names[i]}.exr", rgb.astype(np.float32), half=False)
         rec = {"view": names[i], "seconds": time.perf_counter() - tv,
                "coverage": float(r["alpha"].mean())}
+        if bad.any():
+            rec["nonfinite_pixels_zeroed"] = int(bad.sum())
         if photos is not None and cfg.scale == 1.0:
             gt = np.asarray(linear_to_srgb(np.clip(photos[i], 0.0, 1.0)))
             q = np.round(srgb * 255) / 255  # the 8-bit PNG as written
@@ -140,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         vals = [v[k] for v in per_view if k in v]
         if vals:
             summary[f"mean_{k}"] = float(np.mean(vals))
-    (out / "relight.json").write_text(json.dumps(summary, indent=1))
+    (out / "relight.json").write_text(json.dumps(json_safe(summary), indent=1, allow_nan=False))
     msg = f"[relight] wrote {len(pick)} views to {out} in {summary['render_s']:.1f} s"
     if "mean_psnr" in summary:
         msg += (f"; vs {cam_src} photos: PSNR {summary['mean_psnr']:.2f} dB (object "

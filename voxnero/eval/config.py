@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import ClassVar, Literal
 
+from voxnero.config import Range, at_least
 from voxnero.errors import ConfigError
 
 
@@ -12,6 +13,12 @@ from voxnero.errors import ConfigError
 class EvalConfig:
     """Settings of ``voxnero eval``. Defaults are the project's protocol; change them only to
     explore, and say so next to any number you report."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "voxel": Range(0.0, 1e6), "views": at_least(0), "images": at_least(0, 10000),
+        "material_views": at_least(1, also=(-1,)), "material_spp": at_least(0, 4096),
+        "material_subpixels": at_least(1, 1024)}
+    """Allowed values (:func:`voxnero.config.check_numbers`), checked before ``validate``."""
 
     split: str = "test"
     """Split of the scene holding the ground truth (masks, depth, normals)."""
@@ -37,17 +44,9 @@ class EvalConfig:
     photos were made with (the samples above are split among them; 1 = pixel centres)."""
 
     def validate(self) -> None:
-        if self.voxel < 0:
-            raise ConfigError(f"eval.voxel={self.voxel} must be >= 0 (0: no downsampling)")
-        if self.images < 0:
-            raise ConfigError(f"eval.images={self.images} must be >= 0")
-        if self.material_views == 0 or self.material_views < -1:
-            raise ConfigError(f"eval.material_views={self.material_views} must be >= 1 or -1 "
-                              "(all test views)")
-        if self.material_subpixels < 1:
-            raise ConfigError(f"eval.material_subpixels={self.material_subpixels} must be >= 1")
+        """Check what ``RANGES`` cannot (single values are checked before)."""
         sp = list(self.material_spp)
-        if len(sp) != 3 or min(sp) < 0 or sum(sp) < 1:
+        if len(sp) != 3 or sum(sp) < 1:
             raise ConfigError(f"eval.material_spp={self.material_spp} must be three counts "
                               "(cosine, GGX, env) >= 0 with at least one sample",
                               fix="e.g. eval.material_spp=[8,8,8]")

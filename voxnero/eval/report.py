@@ -31,15 +31,18 @@ BAR = 12
 CMAP = "magma"
 
 
-def _json_safe(x: Any) -> Any:
+def json_safe(x: Any) -> Any:
+    """``x`` with tensors/arrays as lists, paths as strings and every non-finite float as the
+    string ``"nan"``, ``"inf"`` or ``"-inf"``: writable with ``json.dumps(allow_nan=False)``, so
+    no output file holds a bare NaN (which is not JSON)."""
     if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
+        return {str(k): json_safe(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
+        return [json_safe(v) for v in x]
     if isinstance(x, (np.generic, torch.Tensor)) and np.ndim(x) == 0:
         x = x.item()
     if isinstance(x, np.ndarray):
-        return _json_safe(x.tolist())
+        return json_safe(x.tolist())
     if isinstance(x, float) and not math.isfinite(x):
         return "nan" if math.isnan(x) else ("inf" if x > 0 else "-inf")
     if isinstance(x, Path):
@@ -129,7 +132,7 @@ def write_report(out_dir: str | Path, metrics: dict[str, Any],
         paths[name] = out / f"{name}.png"
         Image.fromarray(img).save(paths[name])
     paths["json"] = out / "metrics.json"
-    paths["json"].write_text(json.dumps(_json_safe(metrics), indent=2, allow_nan=False) + "\n")
+    paths["json"].write_text(json.dumps(json_safe(metrics), indent=2, allow_nan=False) + "\n")
     lines = [f"# {title}", "", "| metric | value |", "|---|---|"]
     lines += [f"| {k} | {_fmt(v)} |" for k, v in _flatten(metrics)]
     if vmaxes:

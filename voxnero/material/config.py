@@ -8,15 +8,31 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from dataclasses import field as _field
-from typing import Literal
+from typing import ClassVar, Literal
 
-from voxnero.config import Switch
+from voxnero.config import (
+    BIG_COUNT,
+    FRACTION,
+    LEARNING_RATE,
+    SEED,
+    THREADS,
+    WEIGHT,
+    Range,
+    Switch,
+    at_least,
+    positive,
+)
 from voxnero.errors import ConfigError
 
 
 @dataclass
 class FieldConfig:
     """Material field over the fixed surface: albedo, metallic, roughness."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "grid_res": at_least(2, 1024), "smooth": WEIGHT, "init_albedo": FRACTION,
+        "init_metallic": FRACTION, "init_roughness": FRACTION, "residual_l2": WEIGHT,
+        "range_prior": WEIGHT}
 
     kind: Literal["vertex", "grid"] = "vertex"
     """vertex: parameters per mesh vertex, barycentric interpolation, edge-Laplacian smoothness;
@@ -38,6 +54,9 @@ class FieldConfig:
 class LightConfig:
     """Direct light (explicit lat-long HDR map) and indirect light."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "env_height": at_least(4, 4096), "upsample_at": FRACTION, "env_smooth": WEIGHT}
+
     env_height: list[int] = _field(default_factory=lambda: [64, 256])
     """Env-map heights coarse to fine (width = 2 × height); upsampled at ``upsample_at``."""
     upsample_at: float = 0.3
@@ -53,6 +72,10 @@ class LightConfig:
 @dataclass
 class RenderConfig:
     """Monte Carlo rendering equation on the surface."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "spp_cos": at_least(0, 4096), "spp_ggx": at_least(0, 4096), "spp_env": at_least(0, 4096),
+        "eval_scale": at_least(1, 1024), "eval_subpixels": at_least(1, 1024)}
 
     spp_cos: int = 4
     """Cosine-weighted samples per pixel and estimate (training)."""
@@ -82,6 +105,17 @@ class RenderConfig:
 class MaterialConfig:
     """Stage 2: materials and lights on a fixed mesh."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "iters": at_least(0, BIG_COUNT), "batch": at_least(1, BIG_COUNT),
+        "bg_batch": at_least(0, BIG_COUNT), "lr_material": LEARNING_RATE,
+        "lr_env": LEARNING_RATE, "lr_decay": positive(1.0),
+        "max_pixels": at_least(1, BIG_COUNT), "max_bg_pixels": at_least(0, BIG_COUNT, also=(-1,)),
+        "seed": SEED, "threads": THREADS, "texture_size": at_least(16, 16384),
+        "eval_views": at_least(0, also=(-1,)), "checkpoint_every": at_least(0),
+        "log_every": at_least(1)}
+    """Allowed values (:func:`voxnero.config.check_numbers`), checked before ``validate``;
+    ``lr_decay`` > 0: it is raised to a power (0 would stop training at the first step)."""
+
     iters: int = 1000
     batch: int = 1024
     """Object pixels per step."""
@@ -110,20 +144,12 @@ class MaterialConfig:
     log_every: int = 50
 
     def validate(self) -> None:
-        """Check value ranges; raise ConfigError naming the key and the fix."""
-        if self.iters < 0:
-            raise ConfigError(f"material.iters={self.iters} must be >= 0")
-        if self.batch < 1 or self.bg_batch < 0:
-            raise ConfigError("material.batch must be >= 1 and material.bg_batch >= 0")
+        """Check what ``RANGES`` cannot (single values are checked before); raise ConfigError
+        naming the key and the fix."""
         r = self.render
-        if min(r.spp_cos, r.spp_ggx, r.spp_env) < 0 or r.spp_cos + r.spp_ggx + r.spp_env < 1:
-            raise ConfigError("material.render.spp_* must be >= 0 with at least one sample",
+        if r.spp_cos + r.spp_ggx + r.spp_env < 1:
+            raise ConfigError("material.render.spp_* must give at least one sample",
                               fix="e.g. render.spp_cos=8 render.spp_ggx=8")
-        if r.eval_scale < 1 or r.eval_subpixels < 1:
-            raise ConfigError(f"material.render.eval_scale={r.eval_scale} and "
-                              f"render.eval_subpixels={r.eval_subpixels} must be >= 1")
-        if not self.light.env_height or any(h < 4 for h in self.light.env_height):
-            raise ConfigError(f"material.light.env_height={self.light.env_height} needs "
-                              "heights >= 4", fix="e.g. light.env_height=[64,128]")
-        if self.texture_size < 16:
-            raise ConfigError(f"material.texture_size={self.texture_size} must be >= 16")
+        if not self.light.env_height:
+            raise ConfigError("material.light.env_height=[] needs at least one height",
+                              fix="e.g. light.env_height=[64,128]")

@@ -27,18 +27,25 @@ like the dev data.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from voxnero.cameras.rays import pixel_samples
-from voxnero.errors import ConfigError
+from voxnero.config import BIG_COUNT, SEED, THREADS, Range, at_least, positive
+from voxnero.errors import ConfigError, DataError
 
 
 @dataclass
 class OrbitConfig:
     """Turntable cameras (``voxnero relight --orbit``)."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "frames": at_least(1, 100000), "elevation_deg": Range(-90.0, 90.0),
+        "distance": Range(0.0, 1e9), "fov_deg": Range(0.0, 180.0, lo_open=True, hi_open=True),
+        "size": at_least(1, 16384)}
 
     frames: int = 36
     elevation_deg: float = 20.0
@@ -52,6 +59,16 @@ class OrbitConfig:
 @dataclass
 class RelightConfig:
     """Monte Carlo settings and outputs of ``voxnero relight`` (section ``relight:``)."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "spp": at_least(1, 100000), "dirs": at_least(1, 1000), "bounce_dirs": at_least(1, 1000),
+        "bounces": at_least(1, 64), "scale": positive(16.0), "exposure": Range(-20.0, 20.0),
+        "yaw_deg": Range(-360.0, 360.0), "env_scale": Range(0.0, 1e6),
+        "views": at_least(1, also=(-1,)), "chunk": at_least(1, BIG_COUNT), "seed": SEED,
+        "threads": THREADS}
+    """Allowed values (:func:`voxnero.config.check_numbers`), checked before ``validate``.
+    ``exposure`` within ±20 stops (x1e6): a 1.0 radiance 2^16 times brighter already leaves
+    the half-float range (65504) that EXR viewers and most HDR pipelines use."""
 
     spp: int = 16
     """Primary rays per pixel (stratified in the pixel footprint: box filter, antialiasing)."""
@@ -91,19 +108,15 @@ class RelightConfig:
     orbit: OrbitConfig = field(default_factory=OrbitConfig)
 
     def validate(self) -> None:
-        """Raise ConfigError on impossible values."""
+        """Raise ConfigError on impossible choices (numbers are checked against ``RANGES``
+        before)."""
         from voxnero.render.estimator import STRATEGIES
 
-        if self.spp < 1 or self.dirs < 1 or self.bounce_dirs < 1 or self.bounces < 1:
-            raise ConfigError("relight.spp, dirs, bounce_dirs and bounces must be >= 1",
-                              fix="e.g. spp=16 dirs=3 bounces=2")
         if self.tail not in ("splitsum", "none"):
             raise ConfigError(f"relight.tail={self.tail!r}", fix="use splitsum or none")
         if self.strategy not in STRATEGIES:
             raise ConfigError(f"relight.strategy={self.strategy!r}",
                               fix=f"use one of {STRATEGIES}")
-        if not self.scale > 0:
-            raise ConfigError("relight.scale must be > 0", fix="e.g. scale=0.5")
 
 
 _UP_NAMES = {(0, 0, 1): "z", (0, 1, 0): "y", (0, -1, 0): "-y", (1, 0, 0): "x", (0, 0, -1): "-z"}
@@ -302,16 +315,35 @@ class Relighter:
         return {"rgb": rgb.cpu(), "alpha": alpha}
 
 
+MAX_RADIANCE = 1e20
+"""Largest env radiance × ``2**exposure`` relit: a sun in a real HDR map is ~1e5; far above
+this the Monte Carlo sums (and their squares) leave float32 (3.4e38) and an EXR would hold
+Inf."""
+
+
 def load_env(path, up: np.ndarray, cfg: RelightConfig, device: torch.device | str = "cpu"):
     """Read an equirectangular ``.exr``/``.hdr`` map as an oriented :class:`EnvMap`.
 
     Args:
         path: map file (+Z up in its own frame, dev-scene convention).
         up: (3,) world up axis of the asset's frame.
-        cfg: uses ``yaw_deg`` and ``env_scale``.
+        cfg: uses ``yaw_deg``, ``env_scale`` and ``exposure``.
         device: torch device.
+
+    Raises:
+        DataError: the map scaled by ``env_scale`` and ``2**exposure`` exceeds
+            :data:`MAX_RADIANCE` (naming the file; unreadable or NaN/Inf maps are refused by
+            ``voxnero.io.exr.read_envmap``).
     """
     from voxnero.render.envmap import EnvMap
 
-    return EnvMap.from_file(path, up=up_axis_name(up), yaw_deg=cfg.yaw_deg,
-                            scale=cfg.env_scale, device=device)
+    env = EnvMap.from_file(path, up=up_axis_name(up), yaw_deg=cfg.yaw_deg,
+                           scale=cfg.env_scale, device=device)
+    peak = float(env.img.max()) * 2.0 ** cfg.exposure
+    if not peak <= MAX_RADIANCE:  # also catches inf and NaN
+        raise DataError(f"env map radiance up to {float(env.img.max()):.3g} (env_scale="
+                        f"{cfg.env_scale:g}) at exposure {cfg.exposure:g} reaches {peak:.3g}, "
+                        f"above {MAX_RADIANCE:g}: the renders would overflow to Inf", path=path,
+                        fix="scale the map down (env_scale=1e-3 ...) or lower exposure")
+    return env
+

@@ -8,15 +8,35 @@ fractions of ``iters`` so that a preset scales with its length.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import ClassVar, Literal
 
-from voxnero.config import Switch
+from voxnero.config import (
+    BIG_COUNT,
+    FRACTION,
+    LEARNING_RATE,
+    SEED,
+    THREADS,
+    WEIGHT,
+    Range,
+    Switch,
+    at_least,
+    positive,
+)
 from voxnero.errors import ConfigError
 
 
 @dataclass
 class GridConfig:
     """SDF and feature grids (unit frame, cube ``[-bound, bound]³``)."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "res": at_least(4, 1024), "upsample_at": Range(0.0, 1.0, lo_open=True, hi_open=True),
+        "bound": positive(10.0), "init_radius": positive(1.5), "init_candidates": positive(1.5),
+        "init_margin": Range(-100.0, 100.0), "init_trial": positive(1.0),
+        "fd_step": positive(16.0), "grad_smooth": Range(0.0, 16.0), "feat_res": at_least(1, 512),
+        "feat_dim": at_least(1, 256)}
+    """Allowed values (:func:`voxnero.config.check_numbers`); the units are voxels, the unit
+    frame (``bound``, radii: the object lies in the unit sphere) and dB."""
 
     res: list[int] = field(default_factory=lambda: [48, 96])
     """SDF grid resolutions, coarse to fine; the grid is trilinearly upsampled between them."""
@@ -71,6 +91,10 @@ class GridConfig:
 class SamplingConfig:
     """Ray batch and sample placement."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "rays": at_least(1, BIG_COUNT), "coarse": at_least(2, 4096), "fine": at_least(0, 4096),
+        "coarse_keep": at_least(0, 4096), "radius": positive(10.0)}
+
     rays: int = 4096
     coarse: int = 32
     """Stratified samples per ray of the no-grad coarse pass (also kept for rendering)."""
@@ -85,6 +109,9 @@ class SamplingConfig:
 @dataclass
 class NeusConfig:
     """Scheduled NeuS sharpness (1/length)."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "s_start": positive(1e6), "s_end": positive(1e6), "ramp": FRACTION}
 
     alpha: Literal["sequence", "section"] = "sequence"
     """"sequence": opacity of the interval between consecutive samples from their SDF values
@@ -102,6 +129,16 @@ class NeusConfig:
 class LightConfig:
     """Light and material model switches ("auto" is decided from the data by
     :mod:`voxnero.shape.adaptive` and recorded in ``RUN/decisions.json``; on/off always win)."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "env_height": at_least(4, 4096), "env_init": positive(1e6),
+        "max_log_radiance": Range(-20.0, 80.0), "decide_at": FRACTION,
+        "self_occlusion_min": FRACTION, "decide_until": FRACTION,
+        "decide_rays": at_least(1, BIG_COUNT), "occlusion_offset": Range(0.0, 100.0),
+        "occlusion_t_near": Range(0.0, 100.0), "occlusion_smooth": at_least(0, 1000),
+        "hidden": at_least(1, 4096), "init_roughness": positive(1.0),
+        "init_roughness_candidates": positive(1.0)}
+    """``max_log_radiance`` <= 80: exp(80) ~ 5.5e34 still fits a float32."""
 
     env_height: int = 64
     """Height of the learnable equirectangular env map (width = 2 × height)."""
@@ -157,6 +194,12 @@ class LightConfig:
 class LossConfig:
     """Loss weights."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "charbonnier_eps": positive(1.0), "eikonal": WEIGHT, "laplacian": WEIGHT,
+        "normal_smooth": WEIGHT, "normal_smooth_radius": Range(0.0, 16.0),
+        "normal_smooth_start": FRACTION, "occlusion": WEIGHT, "occlusion_start": FRACTION,
+        "occlusion_every": at_least(1)}
+
     charbonnier_eps: float = 1e-3
     color_space: Literal["srgb", "linear"] = "srgb"
     eikonal: float = 0.1
@@ -180,6 +223,11 @@ class LossConfig:
 class OptimConfig:
     """Adam learning rates per parameter group and decay."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "lr_sdf": LEARNING_RATE, "lr_feat": LEARNING_RATE, "lr_heads": LEARNING_RATE,
+        "lr_env": LEARNING_RATE, "lr_light": LEARNING_RATE, "decay": FRACTION,
+        "warmup": at_least(0)}
+
     lr_sdf: float = 1e-2
     lr_feat: float = 1e-2
     lr_heads: float = 3e-3
@@ -197,6 +245,14 @@ class OptimConfig:
 @dataclass
 class ShapeConfig:
     """Stage 1: SDF geometry (and rough materials/lights) from posed photos."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "iters": at_least(1, BIG_COUNT), "seed": SEED, "mesh_res": at_least(8, 1024),
+        "eval_mesh_res": at_least(8, 1024, also=(0,)), "fit_rays": at_least(1, BIG_COUNT),
+        "ckpt_every_s": Range(0.0), "preview_every": at_least(0), "eval_every_s": Range(0.0),
+        "threads": THREADS}
+    """Allowed values; every section's table is checked before ``validate`` (and so before a
+    command reads its scene)."""
 
     iters: int = 1500
     seed: int = 0
@@ -221,20 +277,15 @@ class ShapeConfig:
     2.5× faster than two under contention (docs/BENCHMARKS.md); raise it on a dedicated machine."""
 
     def validate(self) -> None:
-        """Check cross-field consistency; raise :class:`ConfigError` with the fix."""
+        """Check cross-field consistency (single values are checked against ``RANGES`` before);
+        raise :class:`ConfigError` with the fix."""
         g = self.grid
         if len(g.upsample_at) != len(g.res) - 1:
             raise ConfigError(f"shape.grid.upsample_at has {len(g.upsample_at)} values for "
                               f"{len(g.res)} resolutions",
                               fix="give one fraction of iters per resolution change")
-        if any(r < 4 for r in g.res):
-            raise ConfigError(f"shape.grid.res={g.res}: every resolution must be >= 4")
         if self.sampling.coarse_keep > self.sampling.coarse:
             raise ConfigError("shape.sampling.coarse_keep must be <= shape.sampling.coarse")
-        if g.init_candidates and not 0.0 < g.init_trial <= 1.0:
-            raise ConfigError(f"shape.grid.init_trial={g.init_trial} must be in (0, 1]",
-                              fix="give the fraction of iters each initial radius trains for "
-                                  "(1: each start is a complete run)")
         if g.init_candidates and self.light.occlusion == "auto" and \
                 self.light.decide_at <= g.init_trial < 1.0:
             raise ConfigError(f"shape.grid.init_trial={g.init_trial} must end before "
@@ -251,5 +302,3 @@ class ShapeConfig:
                               f"candidates {rc} must lie in (0.02, 1) (0.02: the material "
                               "head's smallest roughness)",
                               fix="give perceptual roughnesses such as 0.1 or 0.4")
-        if self.iters < 1:
-            raise ConfigError("shape.iters must be >= 1")

@@ -15,7 +15,9 @@ shared 2-core dev machine at load ~11); 0 keeps torch's default.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
+from voxnero.config import BIG_COUNT, FRACTION, SEED, THREADS, Range, at_least, positive
 from voxnero.errors import ConfigError
 
 SHAPES = ("sphere", "torus", "two_spheres")
@@ -26,22 +28,26 @@ SHAPES = ("sphere", "torus", "two_spheres")
 class MaterialConfig:
     """Uniform material: linear base colour, metalness, perceptual roughness r."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "albedo": FRACTION, "metallic": FRACTION, "roughness": FRACTION}
+
     albedo: list[float] = field(default_factory=lambda: [0.8, 0.8, 0.8])
     metallic: float = 0.0
     roughness: float = 0.5
 
     def validate(self) -> None:
-        if len(self.albedo) != 3 or not all(0.0 <= a <= 1.0 for a in self.albedo):
+        """Three albedo values (their range is in ``RANGES``)."""
+        if len(self.albedo) != 3:
             raise ConfigError(f"material.albedo={self.albedo} must be 3 values in [0, 1]",
                               fix="write e.g. albedo=[0.8,0.2,0.1] (linear RGB)")
-        for name in ("metallic", "roughness"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ConfigError(f"material.{name}={getattr(self, name)} must be in [0, 1]")
 
 
 @dataclass
 class SphereConfig:
     """An analytic sphere (default: like the dev scene ``sphere_gold``)."""
+
+    RANGES: ClassVar[dict[str, Range]] = {"radius": positive(100.0),
+                                          "center": Range(-100.0, 100.0)}
 
     radius: float = 0.8
     center: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
@@ -52,6 +58,10 @@ class SphereConfig:
 @dataclass
 class TorusConfig:
     """A ring torus tilted about +X (default: like the dev scene ``torus_ceramic``)."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "major_radius": positive(100.0), "minor_radius": positive(100.0),
+        "tilt_deg": Range(-360.0, 360.0)}
 
     major_radius: float = 0.62
     minor_radius: float = 0.26
@@ -74,6 +84,10 @@ class TwoSpheresConfig:
 class EnvConfig:
     """Environment light: ``source`` = "procedural", "constant" or a path to .exr/.hdr."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "height": at_least(4, 8192), "seed": SEED, "scale": Range(0.0, 1e6),
+        "constant": Range(0.0, 1e6)}
+
     source: str = "procedural"
     height: int = 128
     seed: int = 0
@@ -84,6 +98,14 @@ class EnvConfig:
 @dataclass
 class SynthConfig:
     """Everything that defines a synthetic scene (resolution, views, sampling, light, shapes)."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "resolution": at_least(8, 8192), "n_train": at_least(1, 100000),
+        "n_test": at_least(0, 100000), "spp": at_least(1, 100000), "max_depth": at_least(1, 64),
+        "seed": SEED, "fov_deg": Range(0.0, 170.0, lo_open=True, hi_open=True),
+        "distance": positive(1e6), "elevation_range_deg": Range(-90.0, 90.0),
+        "chunk": at_least(1024, BIG_COUNT), "threads": THREADS}
+    """Allowed values (:func:`voxnero.config.check_numbers`), checked before ``validate``."""
 
     resolution: int = 64
     n_train: int = 24
@@ -103,21 +125,12 @@ class SynthConfig:
     two_spheres: TwoSpheresConfig = field(default_factory=TwoSpheresConfig)
 
     def validate(self) -> None:
-        """Raise :class:`ConfigError` for values that cannot make a scene."""
-        checks = [(self.resolution >= 8, "resolution must be ≥ 8"),
-                  (self.n_train >= 1 and self.n_test >= 0, "n_train ≥ 1 and n_test ≥ 0"),
-                  (self.spp >= 1, "spp must be ≥ 1"),
-                  (self.chunk >= 1024, "chunk must be ≥ 1024 rays"),
-                  (self.threads >= 0, "threads must be ≥ 0 (0 = torch's default)"),
-                  (self.max_depth >= 1, "max_depth must be ≥ 1 (1 = direct light only)"),
-                  (0.0 < self.fov_deg < 170.0, "fov_deg must be in (0, 170)"),
-                  (len(self.elevation_range_deg) == 2
-                   and -90 <= self.elevation_range_deg[0] < self.elevation_range_deg[1] <= 90,
-                   "elevation_range_deg must be [low, high] within [-90, 90]"),
-                  (self.env.height >= 4, "env.height must be ≥ 4")]
-        for ok, msg in checks:
-            if not ok:
-                raise ConfigError(f"synth: {msg}", fix="change the preset or the override")
+        """Raise :class:`ConfigError` for values that cannot make a scene (single values are
+        checked against ``RANGES`` before)."""
+        e = self.elevation_range_deg
+        if not (len(e) == 2 and e[0] < e[1]):
+            raise ConfigError(f"synth.elevation_range_deg={e} must be [low, high] with low < high",
+                              fix="e.g. elevation_range_deg=[-20,90]")
         for m in (self.sphere.material, self.torus.material, self.two_spheres.a.material,
                   self.two_spheres.b.material):
             m.validate()
