@@ -10,17 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fixtures.scenes import make_blender, make_colmap, make_nero
+from fixtures.scenes import edit_json, make_blender, make_colmap, make_nero
 from PIL import Image
 
 from voxnero import cli
 from voxnero.io.exr import write_exr
-
-
-def _edit_json(path: Path, fn) -> None:
-    meta = json.loads(path.read_text())
-    fn(meta)
-    path.write_text(json.dumps(meta))
 
 
 def mixed_sizes(root: Path) -> str:
@@ -37,7 +31,7 @@ def mixed_sizes_with_wh(root: Path) -> str:
 
 def empty_split(root: Path) -> str:
     make_blender(root, n={"train": 2, "test": 1})
-    _edit_json(root / "transforms_test.json", lambda m: m.update(frames=[]))
+    edit_json(root / "transforms_test.json", lambda m: m.update(frames=[]))
     return "transforms_test.json"
 
 
@@ -55,7 +49,7 @@ def unreadable_image(root: Path) -> str:
 
 def pose_wrong_shape(root: Path) -> str:
     make_blender(root, n={"train": 3})
-    _edit_json(root / "transforms_train.json",
+    edit_json(root / "transforms_train.json",
                lambda m: m["frames"][1].update(transform_matrix=np.eye(3).tolist()))
     return "transforms_train.json"
 
@@ -65,7 +59,7 @@ def pose_non_finite(root: Path) -> str:
 
     def f(m):
         m["frames"][2]["transform_matrix"][0][3] = float("nan")
-    _edit_json(root / "transforms_train.json", f)
+    edit_json(root / "transforms_train.json", f)
     return "transforms_train.json"
 
 

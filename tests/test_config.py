@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import typing
 from dataclasses import dataclass, field
 from typing import ClassVar
 
 import pytest
 import yaml
+from config_settings import is_list, numeric_fields, out_of_range, sections
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -91,41 +91,6 @@ def test_missing_preset_lists_available():
 # numbers: finite and inside each class's RANGES table (check_numbers)
 # --------------------------------------------------------------------------------------------
 
-def _sections() -> dict[str, type]:
-    from voxnero.batch.config import BatchConfig
-    from voxnero.commands.info import InfoOptions
-    from voxnero.eval.config import EvalConfig
-    from voxnero.material.config import MaterialConfig
-    from voxnero.relight.render import RelightConfig
-    from voxnero.shape.config import ShapeConfig
-    from voxnero.synth.config import SynthConfig
-
-    return {"shape": ShapeConfig, "material": MaterialConfig, "eval": EvalConfig,
-            "batch": BatchConfig, "synth": SynthConfig, "relight": RelightConfig,
-            "info": InfoOptions}
-
-
-def _numeric(tp) -> bool:
-    """int/float, optional or in a list."""
-    if tp in (int, float):
-        return True
-    return any(_numeric(a) for a in typing.get_args(tp) if a is not type(None))
-
-
-def numeric_fields() -> list[tuple[str, type, dataclasses.Field]]:
-    """``(dotted key, owning class, field)`` of every numeric setting of every command."""
-    out, todo = [], [(k, c) for k, c in _sections().items()]
-    while todo:
-        where, cls = todo.pop()
-        hints = typing.get_type_hints(cls)
-        for f in dataclasses.fields(cls):
-            if dataclasses.is_dataclass(hints[f.name]):
-                todo.append((f"{where}.{f.name}", hints[f.name]))
-            elif _numeric(hints[f.name]):
-                out.append((f"{where}.{f.name}", cls, f))
-    return sorted(out, key=lambda t: t[0])
-
-
 NUMERIC = numeric_fields()
 
 
@@ -142,18 +107,9 @@ def test_defaults_and_every_preset_are_in_range():
     for cls in seen:
         check_numbers(cls())
     for preset in available_presets():
-        for name, cls in _sections().items():
+        for name, cls in sections().items():
             if name != "info":
                 resolve(cls, name, preset, [])
-
-
-def _out_of_range(r: Range) -> list[float]:
-    bad = [math.nan, math.inf, -math.inf]
-    if r.lo is not None:
-        bad += [r.lo if r.lo_open else r.lo - 1]
-    if r.hi is not None:
-        bad += [r.hi if r.hi_open else r.hi * 2 + 1]
-    return [v for v in bad if v not in r.also]
 
 
 @dataclass
@@ -193,13 +149,11 @@ def test_any_non_finite_or_out_of_range_setting_is_refused(entry, data):
     ConfigError naming the dotted key, whatever the other settings are."""
     key, cls, f = entry
     r = cls.RANGES[f.name]
-    value = data.draw(st.sampled_from(_out_of_range(r)))
+    value = data.draw(st.sampled_from(out_of_range(r)))
     section, *rest = key.split(".")
     name = ".".join(rest)
-    tp = typing.get_type_hints(cls)[f.name]
-    is_list = list in {typing.get_origin(t) for t in (tp, *typing.get_args(tp))}
-    override = f"{name}=[{value!r}]" if is_list else f"{name}={value!r}"
-    cfg_cls = _sections()[section]
+    override = f"{name}=[{value!r}]" if is_list(cls, f.name) else f"{name}={value!r}"
+    cfg_cls = sections()[section]
     with pytest.raises(ConfigError) as e:
         if section == "info":
             from_dict(cfg_cls, parse_overrides([override], None))

@@ -119,15 +119,18 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
     if origin is typing.Union or origin is types.UnionType:
         if value is None and type(None) in args:
             return None
-        errors = []
+        errors: list[ConfigError] = []
         for a in args:
             if a is type(None):
                 continue
             try:
                 return _coerce(a, value, where)
             except ConfigError as e:
-                errors.append(str(e))
-        raise ConfigError(f"{where}={value!r} does not fit {tp}")
+                errors.append(e)
+        if len(errors) == 1:  # X | None: X's own message says more
+            raise errors[0]
+        raise ConfigError(f"{where}={value!r} does not fit {tp}",
+                          fix=next((e.fix for e in errors if e.fix), None))
     if origin in (list, tuple):
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{where} must be a list, got {value!r}")

@@ -131,3 +131,29 @@ def test_relight_from_a_transforms_json(sphere_asset_files, env_file, tmp_path):
     ca, cb = (np.nonzero(o.any(0))[0].mean() for o in objs)
     assert abs(ca - 15.5) < 1.0  # centred
     assert cb < 12  # the second camera turned right: the object moves to the left
+
+
+def test_non_finite_pixels_never_reach_the_outputs(sphere_asset_files, env_file, tmp_path,
+                                                   capsys, monkeypatch):
+    """The last guard: a render that comes out NaN/Inf (whatever the cause) is written as 0 with
+    a warning, counted in relight.json, and relight.json holds no bare NaN/Infinity."""
+    import torch
+
+    from voxnero.relight.render import Relighter
+
+    render = Relighter.render
+
+    def poisoned(self, *a, **kw):
+        r = render(self, *a, **kw)
+        r["rgb"][0, 0] = torch.tensor([float("nan"), 1.0, 1.0])
+        r["rgb"][1, 2, 0] = float("inf")
+        return r
+
+    monkeypatch.setattr(Relighter, "render", poisoned)
+    assert _run(sphere_asset_files[0], env_file, tmp_path / "o") == 0
+    assert "2 pixel(s) with NaN/Inf radiance written as 0" in capsys.readouterr().err
+    lin = read_exr(tmp_path / "o" / "exr" / "orbit_000.exr")
+    assert np.isfinite(lin).all() and (lin[0, 0, :3] == 0).all() and (lin[1, 2, :3] == 0).all()
+    text = (tmp_path / "o" / "relight.json").read_text()
+    rep = json.loads(text, parse_constant=lambda c: pytest.fail(f"bare {c} in relight.json"))
+    assert [v["nonfinite_pixels_zeroed"] for v in rep["views"]] == [2, 2]

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -119,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         if bad.any():  # never write NaN/Inf (load_env bounds the light; this is the last guard)
             rgb = np.where(bad[..., None], 0.0, rgb).astype(np.float32)
             bar.write(f"[relight] warning: view {names[i]}: {int(bad.sum())} pixel(s) with "
-                      "NaN/Inf radiance written as 0")
+                      "NaN/Inf radiance written as 0", file=sys.stderr)
         srgb = np.asarray(linear_to_srgb(np.clip(rgb, 0.0, 1.0)))
         if cfg.png:
             write_png(out / f"{names[i]}.png", srgb)
