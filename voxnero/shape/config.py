@@ -111,7 +111,7 @@ class NeusConfig:
     """Scheduled NeuS sharpness (1/length)."""
 
     RANGES: ClassVar[dict[str, Range]] = {
-        "s_start": positive(1e6), "s_end": positive(1e6), "ramp": FRACTION}
+        "s_start": positive(1e9), "s_end": positive(1e9), "ramp": FRACTION}
 
     alpha: Literal["sequence", "section"] = "sequence"
     """"sequence": opacity of the interval between consecutive samples from their SDF values
