@@ -8,8 +8,9 @@ TORCH   ?= torch==2.13.0
 STAMP   := $(VENV)/.voxnero-installed
 GLTF_VALIDATOR ?= gltf-validator@2.0.0-dev.3.10
 DEMO_OUT ?= runs/demo
+CORPUS  ?= cache/corpus
 
-.PHONY: setup sysdeps demo test test-all lint clean
+.PHONY: setup sysdeps demo test test-all lint clean corpus
 
 setup: $(STAMP)
 
@@ -31,6 +32,13 @@ $(STAMP): setup.cfg pyproject.toml tools/install_sysdeps.sh Makefile
 
 demo: $(STAMP)
 	$(VENV)/bin/voxnero demo --out $(DEMO_OUT)
+
+# The development corpus of real shapes (tools/corpus): Mitsuba 3 + pybullet's meshes, a
+# tools-only extra; libllvm19 for Mitsuba's JIT variant. Cached and resumable (gitignored).
+corpus: $(STAMP)
+	@bash tools/install_sysdeps.sh libllvm19
+	$(VPY) -m pip install -q -e ".[scenes]"
+	$(VPY) -m tools.corpus.build --out $(CORPUS)
 
 test: $(STAMP)
 	$(VPY) -m pytest -m "not slow" tests

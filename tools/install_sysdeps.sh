@@ -5,9 +5,11 @@
 #   libgl1 libegl1 libgomp1         : Open3D's GUI/rendering and OpenMP runtime
 #   xvfb xauth                      : a virtual X server, so the test of `voxnero view`'s
 #                                     interactive window runs on headless CI machines
+# Extra package names given as arguments are installed too (`make corpus` passes libllvm19,
+# which Mitsuba 3's fast JIT variants load).
 set -euo pipefail
 need=()
-for p in libusb-1.0-0 libvulkan1 mesa-vulkan-drivers libgl1 libegl1 libgomp1 xvfb xauth; do
+for p in libusb-1.0-0 libvulkan1 mesa-vulkan-drivers libgl1 libegl1 libgomp1 xvfb xauth "$@"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || need+=("$p")
 done
 if [ ${#need[@]} -eq 0 ]; then exit 0; fi

@@ -1,0 +1,216 @@
+"""Tests of ``tools/corpus``: topology, cameras, env-map conventions, ground-truth maps, report.
+
+Everything here runs without Mitsuba (the tools-only extra); the one Mitsuba render is marked
+slow and needs ``pip install -e .[scenes]``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tools.corpus import bench, build, envmaps, rigs, shapes
+from tools.corpus.scenes import SCENES, Material, SceneSpec
+
+# --------------------------------------------------------------------------- shapes / genus
+
+@pytest.mark.parametrize("sdf, res, expected", [
+    (shapes.sphere(0.6), 48, 0),
+    (shapes.torus(0.5, 0.15), 64, 1),
+    (shapes.union(shapes.transformed(shapes.torus(0.3, 0.1), offset=(-0.45, 0, 0)),
+                  shapes.transformed(shapes.torus(0.3, 0.1), offset=(0.45, 0, 0))), 96, 2),
+    (shapes.pretzel(), 128, 3),
+    (shapes.frame_cube(), 96, 5),
+])
+def test_genus_of_marching_cubes_meshes(sdf, res, expected):
+    m = shapes.mesh_sdf(sdf, res)
+    assert shapes.genus(m.triangles, len(m.vertices)) == expected
+
+
+def test_genus_of_an_open_mesh_is_undefined():
+    m = shapes.mesh_sdf(shapes.sphere(0.6), 32)
+    assert shapes.genus(m.triangles[1:], len(m.vertices)) is None
+
+
+def test_marching_cubes_normals_point_outward():
+    m = shapes.mesh_sdf(shapes.sphere(0.6), 48)
+    radial = m.vertices / np.linalg.norm(m.vertices, axis=1, keepdims=True)
+    assert (np.sum(m.normals * radial, axis=1) > 0.95).all()
+    assert np.allclose(np.linalg.norm(m.vertices, axis=1), 0.6, atol=0.01)
+
+
+def test_shape_touching_the_grid_border_is_refused():
+    with pytest.raises(ValueError, match="border"):
+        shapes.mesh_sdf(shapes.sphere(1.2), 16)
+
+
+def test_every_corpus_spec_is_consistent():
+    names = [s.name for s in SCENES]
+    assert len(names) >= 10 and len(set(names)) == len(names)
+    for s in SCENES:
+        assert s.env not in s.relight and len(set(s.relight)) == 2
+        assert {s.env, *s.relight} <= set(envmaps.SOURCES)
+        assert len(s.materials) == (1 if s.split_z is None else 2)
+        assert s.rig in rigs.RIGS and 0.1 < s.fill < 1.0
+    rough = [m.roughness for s in SCENES for m in s.materials]
+    assert min(rough) <= 0.05 and max(rough) >= 0.5
+    assert {0.3, 0.8} <= {s.fill for s in SCENES}
+
+
+# --------------------------------------------------------------------------- cameras
+
+@pytest.mark.parametrize("fill", [0.3, 0.63, 0.8])
+def test_distance_for_fill_projects_the_sphere_to_that_width(fill):
+    radius, width = 0.8, 256
+    d = rigs.distance_for_fill(radius, fill)
+    c2w = rigs.look_at_gl(np.array([[d, 0.0, 0.0]]))[0]
+    f = 0.5 * width / math.tan(math.radians(rigs.FOV_X_DEG) / 2)
+    # silhouette circle of the sphere seen from distance d: tangent points
+    a = math.asin(radius / d)
+    t = np.linspace(0, 2 * math.pi, 361)  # holds 0 and pi: the extremes
+    ring = np.stack([np.full_like(t, radius * math.sin(a)),
+                     radius * math.cos(a) * np.cos(t), radius * math.cos(a) * np.sin(t)], 1)
+    pc = (ring - c2w[:3, 3]) @ c2w[:3, :3]  # world -> OpenGL camera
+    u = f * pc[:, 0] / -pc[:, 2]
+    assert (u.max() - u.min()) / width == pytest.approx(fill, rel=1e-6)
+
+
+def test_look_at_gl_is_a_rotation_looking_at_the_origin_also_from_the_pole():
+    eyes = np.array([[3.0, -2.0, 1.0], [0.0, 0.0, 4.0], [0.0, 0.0, -4.0], [1.0, 1.0, -2.0]])
+    c2w = rigs.look_at_gl(eyes)
+    for m, e in zip(c2w, eyes, strict=True):
+        r = m[:3, :3]
+        assert np.allclose(r.T @ r, np.eye(3), atol=1e-12) and np.linalg.det(r) > 0
+        assert np.allclose(-r[:, 2], -e / np.linalg.norm(e))  # looks down -Z at the origin
+
+
+def test_rigs_have_the_requested_views_below_and_above():
+    for rig in rigs.RIGS:
+        d = rigs.train_directions(rig, 96)
+        assert d.shape == (96, 3) and np.allclose(np.linalg.norm(d, axis=1), 1)
+    assert rigs.train_directions("rings").max(axis=0)[2] == pytest.approx(1.0)  # straight above
+    assert rigs.train_directions("full")[:, 2].min() < math.sin(math.radians(-60))
+    train = rigs.train_directions("band")
+    test, angle = rigs.test_directions("band", train, 16, seed=3)
+    assert test.shape == (16, 3)
+    assert math.degrees(math.acos((test @ train.T).max())) == pytest.approx(angle)
+
+
+# --------------------------------------------------------------------------- env maps
+
+def test_lookup_at_pixel_centres_returns_the_pixels():
+    env = np.random.default_rng(0).uniform(size=(envmaps.HEIGHT, envmaps.WIDTH, 3))
+    got = envmaps.lookup(env, envmaps.directions())
+    # rows 0 and H - 1 are the poles themselves: every column there is the same direction
+    assert np.allclose(got[1:-1], env[1:-1], atol=1e-9)
+
+
+def test_direction_mapping_matches_the_readme_landmarks():
+    d = envmaps.directions()
+    h, w = envmaps.HEIGHT, envmaps.WIDTH
+    assert np.allclose(d[0, 0], [0, 0, 1], atol=1e-12)          # row 0 is the zenith
+    assert np.allclose(d[h - 1, 0], [0, 0, -1], atol=1e-12)     # last row the nadir
+    mid = h // 2
+    # column centre u = 0.25 looks toward +X, 0.5 toward -Y, 0.75 toward -X
+    for u, axis in ((0.25, [1, 0, 0]), (0.5, [0, -1, 0]), (0.75, [-1, 0, 0])):
+        col = int(round(u * w - 0.5))
+        assert np.dot(d[mid, col], axis) > 0.99
+
+
+def test_sun_sky_has_a_small_sun_ten_thousand_times_the_median():
+    env = envmaps.sun_sky(1, 40.0, 30.0)
+    assert env.max() / np.median(env) >= 1e4
+    # the sun covers about its solid angle; brightness x solid angle does not depend on the grid
+    bright = env.max(axis=-1) > 100 * np.median(env)
+    theta = math.pi * np.arange(envmaps.HEIGHT) / (envmaps.HEIGHT - 1)
+    pix_sr = (2 * math.pi / envmaps.WIDTH) * (math.pi / (envmaps.HEIGHT - 1)) * np.sin(theta)
+    area = (bright * pix_sr[:, None]).sum()
+    sun_sr = 2 * math.pi * (1 - math.cos(math.radians(0.8)))
+    assert 0.5 * sun_sr < area < 4 * sun_sr
+
+
+def test_room_is_indoor_lit_by_panels_and_a_window():
+    env = envmaps.room(3)
+    lum = env.mean(axis=-1)
+    assert lum.max() == pytest.approx(np.mean([40.0, 38.0, 34.0]), rel=1e-4)
+    assert np.median(lum) < 1.0 and (lum > 3).mean() < 0.1
+
+
+# --------------------------------------------------------------------------- ground-truth maps
+
+def test_material_maps_follow_the_split_height():
+    spec = SceneSpec("t", lambda: None, "", (Material("a", (0.1, 0.2, 0.3), 0.0, 0.7),
+                                           Material("b", (0.9, 0.8, 0.7), 1.0, 0.2)),
+                     "room_a", ("sky_low", "warehouse"), split_z=0.0)
+    pos = np.zeros((2, 2, 3))
+    pos[0, :, 2], pos[1, :, 2] = -0.5, 0.5
+    cov = np.array([[1.0, 0.0], [1.0, 0.5]])
+    m = build.material_maps(spec, pos, cov)
+    assert np.allclose(m["albedo"][0, 0], [0.1, 0.2, 0.3]) and np.allclose(m["albedo"][0, 1], 0)
+    assert m["metallic"][1, 0] == 1.0 and m["roughness"][1, 1] == pytest.approx(0.2)
+    assert m["roughness"][0, 1] == 0.0
+
+
+def test_z_depth_is_along_the_viewing_axis():
+    c2w = rigs.look_at_gl(np.array([[0.0, -4.0, 0.0]]))[0]
+    pos = np.array([[[0.3, 0.0, 0.2], [0.0, 1.0, 0.0]]])
+    d = build.z_depth(pos, np.array([[1.0, 0.0]]), c2w)
+    assert d[0, 0] == pytest.approx(4.0) and d[0, 1] == 0.0
+
+
+# --------------------------------------------------------------------------- report
+
+def _row(scene, preset, px, normal, relight, genus, genus_true, shape_s=100.0):
+    return {"scene": scene, "preset": preset, "stage": "both", "status": "ok",
+            "time_s": shape_s + 10, "shape_s": shape_s, "material_s": 10.0,
+            "chamfer": px * 0.01, "chamfer_px": px, "normal_deg": normal, "genus": genus,
+            "genus_true": genus_true, "components": 1, "psnr_object": 25.0,
+            "relight_psnr": relight, "pixel_size": 0.01}
+
+
+def test_summary_gives_medians_the_worst_scene_and_genus_hits():
+    rows = [_row("a", "preview", 1.0, 3.0, 25.0, 1, 1), _row("b", "preview", 3.0, 9.0, 20.0,
+                                                             0, 3),
+            _row("c", "preview", 2.0, 5.0, 27.0, 0, 0, shape_s=300.0)]
+    (s,) = bench.summary(rows)
+    assert s["chamfer_px_median"] == 2.0 and s["chamfer_px_worst"] == 3.0
+    assert s["worst_scene"] == "b" and s["genus_right"] == "1 / 2"
+    assert s["relight_psnr_worst"] == 20.0 and s["shape_s_worst"] == 300.0
+    md = bench.markdown(rows)
+    assert "| b | `preview` | 3.00 |" in md and "0 (3)" in md
+
+
+def test_mesh_topology_reads_the_largest_component(tmp_path):
+    from voxnero.synth.writer import write_mesh
+
+    big = shapes.mesh_sdf(shapes.torus(0.5, 0.2), 48)
+    small = shapes.mesh_sdf(shapes.transformed(shapes.sphere(0.05), offset=(0.0, 0.0, 0.7)), 48)
+    v = np.concatenate([big.vertices, small.vertices])
+    t = np.concatenate([big.triangles, small.triangles + len(big.vertices)])
+    n = np.concatenate([big.normals, small.normals])
+    write_mesh(tmp_path / "m.ply", v, t, n)
+    assert bench.mesh_topology(tmp_path / "m.ply") == (1, 2)
+
+
+@pytest.mark.slow
+def test_mitsuba_background_matches_the_env_map_convention():
+    """The written convention (camera axes, env-map orientation) agrees with Mitsuba's."""
+    pytest.importorskip("mitsuba")
+    from tools.corpus import render
+
+    render.set_variant()
+    env = envmaps.room(3)
+    m = shapes.mesh_sdf(shapes.sphere(0.5), 48)
+    r = render.Renderer([render.Part(m.vertices, m.triangles, m.normals, (0.5, 0.5, 0.5), 0.0,
+                                     0.5)], env, 64, 64, rigs.FOV_X_DEG)
+    c2w = rigs.look_at_gl(np.array([[3.0, -2.0, 1.0]]))[0]
+    f = 0.5 * 64 / math.tan(math.radians(rigs.FOV_X_DEG) / 2)
+    rgb = r.radiance(c2w, 64, 0)
+    cov = r.geometry(c2w, 16, 0)["coverage"]
+    build.WIDTH = build.HEIGHT = 64
+    try:
+        assert build.background_check(env, rgb, cov, c2w, f) > 30.0
+    finally:
+        build.WIDTH = build.HEIGHT = 256
