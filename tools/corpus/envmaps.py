@@ -105,7 +105,10 @@ def _disc(axis: np.ndarray, radius: float, sub: int = 8) -> np.ndarray:
 def room(seed: int, size: tuple[float, float, float] = (6.0, 8.0, 3.2),
          centre: tuple[float, float, float] = (0.7, -0.9, 1.0)) -> np.ndarray:
     """An indoor room seen from ``centre`` (metres from the room's floor centre): a checker
-    floor, striped walls, two ceiling light panels (≈ 40) and a window (≈ 6); walls ≈ 0.2.
+    floor, striped walls, two ceiling light panels (≈ 6) and a window (≈ 3); walls ≈ 0.2.
+
+    The panels are set so that a white diffuse surface under them reads about 0.9 (not clipped
+    in the 8-bit photos).
 
     Returns:
         ``(256, 512, 3)`` float32 linear radiance.
@@ -139,10 +142,10 @@ def room(seed: int, size: tuple[float, float, float] = (6.0, 8.0, 3.2),
     env[ceil] = 0.5
     for cx in (-1.2, 1.4):
         panel = ceil & (np.abs(p[..., 0] - cx) < 0.5) & (np.abs(p[..., 1]) < 1.2)
-        env[panel] = np.array([40.0, 38.0, 34.0])
+        env[panel] = np.array([6.0, 5.7, 5.1])
     window = ((which == 1) & (d[..., 1] > 0) & (np.abs(p[..., 0] - 0.5) < 1.2)
               & (p[..., 2] > 1.0) & (p[..., 2] < 2.4))
-    env[window] = np.array([4.5, 5.5, 7.0])
+    env[window] = np.array([2.4, 2.9, 3.6])
     return env.astype(np.float32)
 
 
