@@ -135,6 +135,10 @@ def _from_yaml(manifest: Path) -> list[SceneEntry]:
 def _from_csv(manifest: Path) -> list[SceneEntry]:
     lines = [ln for ln in manifest.read_text().splitlines()
              if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise ConfigError("the CSV manifest is empty", path=manifest,
+                          fix="write a header line path,name,overrides, then one scene folder "
+                              "per line")
     reader = csv.DictReader(lines)
     cols = [c.strip() for c in (reader.fieldnames or [])]
     if "path" not in cols:
@@ -146,7 +150,8 @@ def _from_csv(manifest: Path) -> list[SceneEntry]:
         item = {k: row[k] for k in ("path", "name", "overrides") if row.get(k)}
         out.append(_item(item, f"row {i + 2}", manifest))
     if not out:
-        raise ConfigError("the manifest lists no scenes", path=manifest)
+        raise ConfigError("the CSV manifest lists no scenes (a header only)", path=manifest,
+                          fix="add one line per scene under the header, e.g. scenes/sphere,,")
     return out
 
 

@@ -379,7 +379,12 @@ def load_obj(path: str | Path, up=(0.0, 0.0, 1.0)) -> Asset:
         name = mtl.get(key)
         if not name:
             return None
-        return read_image(path.parent / name.split()[-1])
+        file = path.parent / name.split()[-1]
+        if not file.is_file():
+            raise DataError(f"texture file not found ({key} of {mtllib})", path=file,
+                            fix=f"put the texture beside {path.name}, correct the {key} line of "
+                                f"{mtllib}, or pass the model.glb (its textures are embedded)")
+        return read_image(file)
 
     def num(key: str, default: float) -> float:
         try:

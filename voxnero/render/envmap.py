@@ -418,10 +418,20 @@ class EnvMap:
     @classmethod
     def from_file(cls, path, up: str = "z", yaw_deg: float = 0.0, scale: float = 1.0,
                   device=None) -> EnvMap:
-        """Read an ``.exr``/``.hdr`` map with ``voxnero.io.exr.read_envmap`` (times ``scale``)."""
+        """Read an ``.exr``/``.hdr`` map with ``voxnero.io.exr.read_envmap`` (times ``scale``).
+
+        Raises:
+            DataError: unreadable, or smaller than 2 x 2 pixels (naming the file).
+        """
+        from voxnero.errors import DataError
         from voxnero.io.exr import read_envmap
 
         img = torch.from_numpy(read_envmap(path)) * scale
+        if img.shape[0] < 2 or img.shape[1] < 2:
+            raise DataError(f"the env map is {img.shape[1]} x {img.shape[0]} pixels: an "
+                            "equirectangular map needs at least 2 rows and 2 columns",
+                            path=path, fix="pass an equirectangular HDR map (width = 2 x "
+                            "height, e.g. 1024 x 512)")
         return cls(img, up=up, yaw_deg=yaw_deg, device=device)
 
     def save(self, path) -> None:
