@@ -36,6 +36,13 @@ def add_common(parser: argparse.ArgumentParser, target_help: str, default_preset
                         help="config overrides, e.g. iters=2000 grid.res=96")
 
 
+def add_fresh(parser: argparse.ArgumentParser) -> None:
+    """Add ``--fresh``: start over in ``--out`` instead of resuming its checkpoint."""
+    parser.add_argument("--fresh", action="store_true",
+                        help="start over: delete the checkpoint and run state in --out first "
+                             "(its outputs are replaced only when the new run succeeds)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one sub-parser per command module."""
     parser = argparse.ArgumentParser(

@@ -336,12 +336,14 @@ def resolve(cls: type[T], section: str, preset: str, overrides: list[str],
 
 def save_resolved(out_dir: str | Path, sections: dict[str, Any], meta: dict[str, Any] | None = None
                   ) -> Path:
-    """Write ``config.yaml`` (the resolved config of every section given) into ``out_dir``."""
+    """Write ``config.yaml`` (the resolved config of every section given) into ``out_dir``,
+    atomically (a command writes it into its run folder's staging folder: it appears only when
+    the run succeeded)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     doc = {k: to_dict(v) for k, v in sections.items()}
     if meta:
         doc["_meta"] = meta
-    path = out_dir / "config.yaml"
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return path
+    from voxnero.safety.folder import atomic_write_text
+
+    return atomic_write_text(out_dir / "config.yaml", yaml.safe_dump(doc, sort_keys=False))

@@ -35,3 +35,13 @@ class ConfigError(VoxneroError):
 
 class NotBuiltError(VoxneroError):
     """A command whose stage is not implemented yet."""
+
+
+class RunFolderError(VoxneroError):
+    """The output folder cannot be used: not a folder, not writable, locked by another run,
+    removed during the run, or holding a checkpoint of another scene or other settings."""
+
+
+class TrainingError(VoxneroError):
+    """Training cannot go on: the loss stayed non-finite (a setting or the data is the likely
+    cause); the last good checkpoint is kept."""

@@ -7,9 +7,12 @@ One row per scene, in manifest order, as returned by :func:`voxnero.batch.tasks.
 from __future__ import annotations
 
 import csv
+import io
 import math
 from pathlib import Path
 from typing import Any
+
+from voxnero.safety.folder import atomic_write_text
 
 COLUMNS = ["scene", "status", "error", "time_s", "peak_mem_mb", "attempts", "chamfer",
            "normal_deg", "psnr", "mesh", "model", "metrics", "out", "path"]
@@ -43,14 +46,14 @@ def all_succeeded(rows: list[dict[str, Any]]) -> bool:
 
 
 def write_csv(path: str | Path, rows: list[dict[str, Any]]) -> Path:
-    """Write ``rows`` with :data:`COLUMNS` (extra keys are left out)."""
+    """Write ``rows`` with :data:`COLUMNS` (extra keys are left out), atomically."""
     path = Path(path)
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(COLUMNS)
-        for r in rows:
-            w.writerow([_cell(r.get(c)) for c in COLUMNS])
-    return path
+    buf = io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(COLUMNS)
+    for r in rows:
+        w.writerow([_cell(r.get(c)) for c in COLUMNS])
+    return atomic_write_text(path, buf.getvalue())
 
 
 def _md(v: Any, digits: int) -> str:
@@ -86,7 +89,7 @@ def write_markdown(path: str | Path, rows: list[dict[str, Any]], title: str = "V
                   for r in errors]
     lines += ["", "Chamfer: NeRO protocol, normalised frame; PSNR: stage-2 novel views; time: "
               "wall seconds of the last attempt; peak mem: max RSS of the scene's process."]
-    path.write_text("\n".join(lines) + "\n")
+    atomic_write_text(path, "\n".join(lines) + "\n")
     return path
 
 

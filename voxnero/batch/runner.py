@@ -21,6 +21,7 @@ from voxnero.batch.manifest import SceneEntry, probe_scene, read_manifest
 from voxnero.batch.results import all_succeeded, summarize, write_results
 from voxnero.batch.tasks import SceneJob, read_result, remote_task, write_result
 from voxnero.errors import ConfigError
+from voxnero.safety.folder import RunFolder
 
 STAGE_SECTIONS = ("shape", "material")
 
@@ -140,47 +141,48 @@ def run_batch(manifest: str | Path, preset: str, out: str | Path, overrides: lis
     entries = read_manifest(manifest)
     preset_arg = str(Path(preset).resolve()) if Path(preset).suffix else preset
 
-    rows: dict[str, dict[str, Any]] = {}
-    jobs: list[tuple[SceneEntry, BatchConfig, SceneJob]] = []
-    for e in entries:
-        sdir = out / e.name
-        prev = read_result(sdir)
-        if prev and prev.get("status") == "ok":
-            rows[e.name] = {**prev, "status": "skipped"}
-            continue
-        err = probe_scene(e.path)
-        if err is None:
-            try:
-                g = split_overrides(e.overrides)
-                check_stage_overrides(preset, groups["stages"] + g["stages"],
-                                      groups["eval"] + g["eval"])
-                cfg_e = resolve(BatchConfig, "batch", preset, groups["batch"] + g["batch"]) \
-                    if g["batch"] else cfg
-            except ConfigError as ce:
-                err = f"per-scene overrides: {' '.join(str(ce).split())}"
-        if err is not None:
-            row = _error_row(e, sdir, err)
-            write_result(sdir, row)
-            rows[e.name] = row
-            continue
-        jobs.append((e, cfg_e, SceneJob(name=e.name, scene=str(e.path), out=str(sdir),
-                                        preset=preset_arg,
-                                        overrides=groups["stages"] + g["stages"],
-                                        eval_overrides=groups["eval"] + g["eval"],
-                                        command=cfg_e.command, eval=cfg_e.eval, device=device,
-                                        lock_timeout_s=cfg_e.lock_timeout_s)))
-    n_skip = sum(r["status"] == "skipped" for r in rows.values())
-    log(f"[batch] {len(entries)} scenes: {n_skip} finished earlier (skipped), "
-        f"{len(rows) - n_skip} rejected (not a scene or bad overrides), {len(jobs)} to run")
+    with RunFolder(out, "batch", log=log):  # one batch per folder; scenes lock their own
+        rows: dict[str, dict[str, Any]] = {}
+        jobs: list[tuple[SceneEntry, BatchConfig, SceneJob]] = []
+        for e in entries:
+            sdir = out / e.name
+            prev = read_result(sdir)
+            if prev and prev.get("status") == "ok":
+                rows[e.name] = {**prev, "status": "skipped"}
+                continue
+            err = probe_scene(e.path)
+            if err is None:
+                try:
+                    g = split_overrides(e.overrides)
+                    check_stage_overrides(preset, groups["stages"] + g["stages"],
+                                          groups["eval"] + g["eval"])
+                    cfg_e = resolve(BatchConfig, "batch", preset, groups["batch"] + g["batch"]) \
+                        if g["batch"] else cfg
+                except ConfigError as ce:
+                    err = f"per-scene overrides: {' '.join(str(ce).split())}"
+            if err is not None:
+                row = _error_row(e, sdir, err)
+                write_result(sdir, row)
+                rows[e.name] = row
+                continue
+            jobs.append((e, cfg_e, SceneJob(name=e.name, scene=str(e.path), out=str(sdir),
+                                            preset=preset_arg,
+                                            overrides=groups["stages"] + g["stages"],
+                                            eval_overrides=groups["eval"] + g["eval"],
+                                            command=cfg_e.command, eval=cfg_e.eval, device=device,
+                                            lock_timeout_s=cfg_e.lock_timeout_s)))
+        n_skip = sum(r["status"] == "skipped" for r in rows.values())
+        log(f"[batch] {len(entries)} scenes: {n_skip} finished earlier (skipped), "
+            f"{len(rows) - n_skip} rejected (not a scene or bad overrides), {len(jobs)} to run")
 
-    if jobs:
-        _run_jobs(jobs, cfg, address, rows, len(entries), progress, log)
-    ordered = [rows[e.name] for e in entries]
-    csv_path, md_path = write_results(out, ordered)
-    s = summarize(ordered)
-    log(f"[batch] {s['ok']} done, {s['skipped']} skipped (finished earlier), {s['error']} failed;"
-        f" wrote {csv_path} and {md_path}")
-    return ordered
+        if jobs:
+            _run_jobs(jobs, cfg, address, rows, len(entries), progress, log)
+        ordered = [rows[e.name] for e in entries]
+        csv_path, md_path = write_results(out, ordered)
+        s = summarize(ordered)
+        log(f"[batch] {s['ok']} done, {s['skipped']} skipped (finished earlier), "
+            f"{s['error']} failed; wrote {csv_path} and {md_path}")
+        return ordered
 
 
 def _run_jobs(jobs: list[tuple[SceneEntry, BatchConfig, SceneJob]], cfg: BatchConfig,

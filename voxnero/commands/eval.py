@@ -277,15 +277,18 @@ def evaluate(mesh_path: Path, scene_path: Path, cfg, out: Path,
 def run(args: argparse.Namespace) -> int:
     from voxnero.config import resolve, save_resolved
     from voxnero.eval.config import EvalConfig
+    from voxnero.safety.folder import RunFolder
 
     cfg = resolve(EvalConfig, "eval", args.preset, args.overrides)
     mesh_path = find_mesh(args.target)
     scene_path = find_scene(args.target, args.scene)
-    out = Path(args.out)
-    save_resolved(out, {"eval": cfg}, meta={"command": "eval", "mesh": str(mesh_path),
-                                            "scene": str(scene_path)})
-    stage2 = Path(args.target) if is_stage2_run(args.target) else None
-    m = evaluate(mesh_path, scene_path, cfg, out, stage2_run=stage2)
+    with RunFolder(args.out, "eval") as run:
+        save_resolved(run.staging, {"eval": cfg},
+                      meta={"command": "eval", "mesh": str(mesh_path), "scene": str(scene_path)})
+        stage2 = Path(args.target) if is_stage2_run(args.target) else None
+        m = evaluate(mesh_path, scene_path, cfg, run.staging, stage2_run=stage2)
+        run.commit()
+    out = run.path
     c = m["chamfer"]
     line = (f"chamfer {c['cd']:.5f} (acc {c['acc']:.5f}, comp {c['comp']:.5f}; "
             f"{m['n_views']} views, input frame)")

@@ -101,8 +101,9 @@ def run(args: argparse.Namespace) -> int:
                   for n, d in info["splits"].items()]
         print("eval extras " + "; ".join(extras))
     if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "info.json").write_text(json.dumps(info, indent=1, default=str))
-        print(f"wrote {out / 'info.json'}")
+        from voxnero.safety.folder import RunFolder, atomic_write_text
+
+        with RunFolder(args.out, "info") as run:
+            atomic_write_text(run.path / "info.json", json.dumps(info, indent=1, default=str))
+        print(f"wrote {run.path / 'info.json'}")
     return 0

@@ -6,8 +6,10 @@ RUN_OR_MESH is a stage-1 run folder (``mesh.ply`` in the input frame and ``confi
 the scene in ``_meta.scene``) or a mesh file in the scene's input frame (then ``--scene`` is
 required). Writes into ``--out``: ``model.glb`` (+ ``model.glb.json``), ``model.obj`` / ``.mtl`` /
 PNG textures, ``envmap.exr`` (+ ``envmap.json``), ``materials.json`` (statistics, decisions,
-timings, metrics), ``config.yaml`` (resolved config), ``checkpoint.pt`` (re-running resumes)
-and, if the scene has test views, ``eval/`` comparison images.
+timings, metrics), ``config.yaml`` (resolved config), ``checkpoint.pt`` (re-running resumes;
+another mesh, scene or other settings are refused unless ``--fresh``) and, if the scene has test
+views, ``eval/`` comparison images. The folder is locked for the run and its outputs and
+``config.yaml`` are replaced only when the run succeeded (:mod:`voxnero.safety.folder`).
 """
 
 from __future__ import annotations
@@ -16,18 +18,23 @@ import argparse
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 NAME = "material"
 HELP = "stage 2: materials and env light on a fixed mesh -> model.glb, envmap.exr"
 DESCRIPTION = __doc__.split("\n\n", 1)[1]
+CKPT = "checkpoint.pt"
+STATE = (CKPT, "checkpoint.tmp")
+"""Run state of a stage-2 folder (``--fresh`` deletes it)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from voxnero.cli import add_common
+    from voxnero.cli import add_common, add_fresh
 
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     add_common(parser, "stage-1 run folder (mesh.ply + config.yaml) or a mesh file (input "
                "frame; then --scene is required)")
+    add_fresh(parser)
     parser.add_argument("--scene", default=None,
                         help="scene folder (default: _meta.scene of the run's config.yaml)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -69,12 +76,33 @@ def locate(target: str | Path, scene: str | None) -> tuple[Path, Path]:
 
 
 def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from voxnero.config import resolve
+    from voxnero.material.config import MaterialConfig
+    from voxnero.safety.folder import RunFolder
+
+    cfg = resolve(MaterialConfig, "material", args.preset, args.overrides)
+    if cfg.threads > 0:
+        torch.set_num_threads(cfg.threads)
+    mesh_path, scene_path = locate(args.target, args.scene)
+    with RunFolder(args.out, "material", fresh=STATE if args.fresh else None) as run:
+        _run(args, cfg, mesh_path, scene_path, run)
+        run.commit()
+    print(f"[material] wrote {run.path / 'model.glb'}, model.obj, envmap.exr, materials.json")
+    return 0
+
+
+def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
+         run: Any) -> None:
+    """Train and write every output into ``run.staging`` (checkpoints into ``run.path``)."""
     import numpy as np
     import torch
 
-    from voxnero.config import resolve, save_resolved
+    from voxnero.config import save_resolved
     from voxnero.data.detect import load_scene
     from voxnero.eval.images import psnr
+    from voxnero.eval.report import json_safe
     from voxnero.export.envmap import write_envmap
     from voxnero.export.gltf import write_glb
     from voxnero.export.obj import write_obj
@@ -82,20 +110,15 @@ def run(args: argparse.Namespace) -> int:
     from voxnero.export.textures import bake_textures
     from voxnero.io.color import linear_to_srgb
     from voxnero.io.exr import read_envmap
-    from voxnero.material.config import MaterialConfig
     from voxnero.material.evaluate import evaluate_scene
     from voxnero.material.field import vertex_materials
     from voxnero.material.render import Strategies
     from voxnero.material.surface import Geometry, build_cache
     from voxnero.material.trainer import MaterialTrainer
     from voxnero.mesh.io import load_mesh
+    from voxnero.safety.fingerprint import file_digest, scene_digest
 
-    cfg = resolve(MaterialConfig, "material", args.preset, args.overrides)
-    if cfg.threads > 0:
-        torch.set_num_threads(cfg.threads)
-    mesh_path, scene_path = locate(args.target, args.scene)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = run.staging
     save_resolved(out, {"material": cfg}, meta={
         "command": "material", "mesh": str(mesh_path), "scene": str(scene_path),
         "preset": args.preset, "overrides": list(args.overrides)})
@@ -122,9 +145,11 @@ def run(args: argparse.Namespace) -> int:
     from voxnero.device import default_device
 
     device = default_device(args.device)
-    trainer = MaterialTrainer(cfg, geom, cache, device=device)
+    trainer = MaterialTrainer(cfg, geom, cache, device=device,
+                              sources={"scene": scene_digest(scene),
+                                       "mesh": file_digest(mesh_path)})
     t1 = time.perf_counter()
-    summary = trainer.fit(out / "checkpoint.pt", progress=not args.no_progress)
+    summary = trainer.fit(run.path / CKPT, progress=not args.no_progress)
     times["train_s"] = time.perf_counter() - t1
     print(f"[material] trained {trainer.step} steps in {times['train_s']:.1f} s", flush=True)
 
@@ -163,11 +188,10 @@ def run(args: argparse.Namespace) -> int:
                                       cfg.eval_views, out / "eval",
                                       subpixels=cfg.render.eval_subpixels))
         times["eval_s"] = time.perf_counter() - t3
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1, default=str))
+    (out / "metrics.json").write_text(json.dumps(json_safe(metrics), indent=1, default=str,
+                                                 allow_nan=False))
     w = vertex_areas(geom.vertices.numpy().astype(np.float64), geom.triangles.numpy())
     write_summary(out / "materials.json", a.numpy(), m.numpy(), r.numpy(), w, env.numpy(),
                   extra={"decisions": trainer.decisions, "times": times, "metrics": metrics,
                          "mesh": str(mesh_path), "scene": str(scene_path)})
-    print(f"[material] wrote {out / 'model.glb'}, model.obj, envmap.exr, materials.json "
-          f"(total {time.perf_counter() - t0:.0f} s)")
-    return 0
+    print(f"[material] outputs written (total {time.perf_counter() - t0:.0f} s)", flush=True)

@@ -5,7 +5,9 @@ one preset.
 
 Writes ``DIR/shape/`` (mesh.ply, stage-1 run files) and ``DIR/material/`` (model.glb,
 model.obj, envmap.exr, materials.json ...). Overrides must name their stage (``shape.iters=3000``,
-``material.iters=800``). Re-running resumes each stage from its checkpoint.
+``material.iters=800``). Re-running resumes each stage from its checkpoint (``--fresh``: both
+start over); each stage's folder is guarded as its own command guards it
+(:mod:`voxnero.safety.folder`), and ``DIR`` is locked for the run.
 """
 
 from __future__ import annotations
@@ -20,10 +22,11 @@ DESCRIPTION = __doc__.split("\n\n", 1)[1]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from voxnero.cli import add_common
+    from voxnero.cli import add_common, add_fresh
 
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     add_common(parser, "scene folder (NeRF-synthetic/Blender, NeRO or COLMAP)")
+    add_fresh(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -58,9 +61,18 @@ def split_overrides(items: list[str]) -> tuple[list[str], list[str]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = Path(args.out)
+    from voxnero.safety.folder import RunFolder
+
     ov_shape, ov_material = split_overrides(list(args.overrides))
+    with RunFolder(args.out, "reconstruct") as run:  # the stages lock and guard their folders
+        _stages(args, run.path, ov_shape, ov_material)
+    return 0
+
+
+def _stages(args: argparse.Namespace, out: Path, ov_shape: list[str],
+            ov_material: list[str]) -> None:
     extra = ["--no-progress"] if args.no_progress else []
+    extra += ["--fresh"] if args.fresh else []
     steps = [
         ("shape", ["shape", *extra, "--preset", args.preset, "--out", str(out / "shape"),
                    "--device", args.device, str(args.target), *ov_shape]),
@@ -74,4 +86,3 @@ def run(args: argparse.Namespace) -> int:
         _stage(argv)
         print(f"[reconstruct] {name} done in {time.perf_counter() - t0:.1f} s", flush=True)
     print(f"[reconstruct] outputs in {out}/shape and {out}/material")
-    return 0

@@ -11,10 +11,12 @@ names), a ``transforms.json``, or a turntable (``--orbit``; ``relight.orbit.fram
 ``bounces``, ``tail``, ``scale`` (resolution), ``exposure`` (stops), ``yaw_deg`` (env rotation
 about the up axis), ``views``, ``seed`` (section ``relight:`` of the preset).
 
-Writes into ``--out``: ``<view>.png`` (sRGB, round(255·sRGB(clip(L))) like the dev data),
-``exr/<view>.exr`` (linear), ``config.yaml`` and ``relight.json`` (timings and, when the
-camera split has photos, PSNR against them: whole image and fully covered pixels, raw and with
-a per-channel scale fitted on the object's unclipped pixels). No output holds NaN/Inf: an env
+Writes into ``--out`` (locked for the run; every file, ``config.yaml`` included, is replaced
+only when the run succeeded, :mod:`voxnero.safety.folder`): ``<view>.png`` (sRGB,
+round(255·sRGB(clip(L))) like the dev data), ``exr/<view>.exr`` (linear), ``config.yaml`` and
+``relight.json`` (timings and, when the camera split has photos, PSNR against them: whole
+image and fully covered pixels, raw and with a per-channel scale fitted on the object's
+unclipped pixels). No output holds NaN/Inf: an env
 map too bright for float32 at the given ``exposure`` is refused before rendering, a pixel that
 still comes out non-finite is written as 0 with a warning (and counted in ``relight.json``), and
 a non-finite number in ``relight.json`` is written as a string ("inf").
@@ -27,6 +29,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 NAME = "relight"
 HELP = "render an asset under another HDR environment map (PNG + EXR)"
@@ -73,18 +76,13 @@ def _cameras(args, cfg, asset):
 def run(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
-    from tqdm import tqdm
 
-    from voxnero.config import resolve, save_resolved
+    from voxnero.config import resolve
     from voxnero.device import default_device
-    from voxnero.eval.images import fit_channel_scale, psnr
-    from voxnero.eval.report import json_safe
-    from voxnero.io.color import linear_to_srgb
-    from voxnero.io.exr import write_exr
-    from voxnero.io.images import write_png
     from voxnero.relight.asset import load_asset
     from voxnero.relight.cameras import scaled
-    from voxnero.relight.render import RelightConfig, Relighter, load_env
+    from voxnero.relight.render import RelightConfig, load_env
+    from voxnero.safety.folder import RunFolder
 
     cfg = resolve(RelightConfig, "relight", args.preset, args.overrides)
     if cfg.threads > 0:
@@ -98,8 +96,29 @@ def run(args: argparse.Namespace) -> int:
     pick = list(range(n)) if cfg.views < 0 else \
         np.unique(np.linspace(0, n - 1, min(cfg.views, n)).round().astype(int)).tolist()
     cams_r = scaled(cams, cfg.scale)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    with RunFolder(args.out, "relight") as run:
+        _render(args, cfg, device, asset, env, cams_r, names, photos, cam_src, pick, t0,
+                run.staging)
+        run.commit()
+    return 0
+
+
+def _render(args: argparse.Namespace, cfg: Any, device: Any, asset: Any, env: Any, cams_r: Any,
+            names: list[str], photos: Any, cam_src: str, pick: list[int], t0: float,
+            out: Path) -> None:
+    """Render the views ``pick`` and write every output into ``out`` (the staging folder)."""
+    import numpy as np
+    import torch
+    from tqdm import tqdm
+
+    from voxnero.config import save_resolved
+    from voxnero.eval.images import fit_channel_scale, psnr
+    from voxnero.eval.report import json_safe
+    from voxnero.io.color import linear_to_srgb
+    from voxnero.io.exr import write_exr
+    from voxnero.io.images import write_png
+    from voxnero.relight.render import Relighter
+
     save_resolved(out, {"relight": cfg}, meta={
         "command": "relight", "asset": str(args.target), "env": str(args.env),
         "cameras": cam_src, "preset": args.preset, "overrides": list(args.overrides)})
@@ -153,9 +172,8 @@ def run(args: argparse.Namespace) -> int:
         if vals:
             summary[f"mean_{k}"] = float(np.mean(vals))
     (out / "relight.json").write_text(json.dumps(json_safe(summary), indent=1, allow_nan=False))
-    msg = f"[relight] wrote {len(pick)} views to {out} in {summary['render_s']:.1f} s"
+    msg = f"[relight] wrote {len(pick)} views to {args.out} in {summary['render_s']:.1f} s"
     if "mean_psnr" in summary:
         msg += (f"; vs {cam_src} photos: PSNR {summary['mean_psnr']:.2f} dB (object "
                 f"{summary.get('mean_psnr_object', float('nan')):.2f} dB)")
     print(msg)
-    return 0

@@ -2,14 +2,16 @@
 
 Writes ``mesh.ply`` (input frame) and the run files described in
 :mod:`voxnero.shape.trainer` into ``--out``. Re-running the same command resumes from the last
-checkpoint (Ctrl-C or ``kill`` save one first).
+checkpoint (Ctrl-C or ``kill`` save one first); another scene or other settings are refused
+unless ``--fresh``. The folder is locked for the run, and ``mesh.ply``, ``sdf.npz``,
+``envmap.exr``, ``shape.json`` and ``config.yaml`` are replaced only when it succeeds
+(:mod:`voxnero.safety.folder`).
 """
 
 from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 NAME = "shape"
 HELP = "stage 1: SDF geometry (mesh.ply) from posed photos"
@@ -19,10 +21,11 @@ DESCRIPTION = ("Stage 1: reconstruct the geometry of a (shiny) object as a dense
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from voxnero.cli import add_common
+    from voxnero.cli import add_common, add_fresh
 
     add_common(parser, "scene folder (NeRF-synthetic/Blender, NeRO or COLMAP)",
                default_preset="standard")
+    add_fresh(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--no-eval", action="store_true",
                         help="do not log Chamfer even if the scene has ground truth")
@@ -43,20 +46,24 @@ def _load(path: str, with_eval: bool):
 def run(args: argparse.Namespace) -> int:
     from voxnero.config import resolve, save_resolved
     from voxnero.device import default_device
+    from voxnero.safety.folder import RunFolder
     from voxnero.shape.config import ShapeConfig
-    from voxnero.shape.trainer import ShapeTrainer
+    from voxnero.shape.trainer import STATE, ShapeTrainer
 
     cfg = resolve(ShapeConfig, "shape", args.preset, args.overrides)
     device = default_device(args.device)
-    out = Path(args.out)
-    t0 = time.perf_counter()
-    scene = _load(args.target, not args.no_eval)
-    print(f"[shape] loaded {args.target} in {time.perf_counter() - t0:.1f} s; device {device}",
-          flush=True)
-    save_resolved(out, {"shape": cfg}, meta={"command": "shape", "scene": str(args.target),
-                                             "preset": args.preset,
-                                             "overrides": list(args.overrides)})
-    trainer = ShapeTrainer(cfg, scene, out, device=device, progress=not args.no_progress)
-    mesh = trainer.run()
-    print(f"[shape] wrote {mesh} ({trainer.train_time:.0f} s of training, {trainer.step} steps)")
+    with RunFolder(args.out, "shape", fresh=STATE if args.fresh else None) as run:
+        t0 = time.perf_counter()
+        scene = _load(args.target, not args.no_eval)
+        print(f"[shape] loaded {args.target} in {time.perf_counter() - t0:.1f} s; device "
+              f"{device}", flush=True)
+        save_resolved(run.staging, {"shape": cfg},
+                      meta={"command": "shape", "scene": str(args.target),
+                            "preset": args.preset, "overrides": list(args.overrides)})
+        trainer = ShapeTrainer(cfg, scene, run.path, device=device,
+                               progress=not args.no_progress, outputs=run.staging)
+        trainer.run()
+        run.commit()
+    print(f"[shape] wrote {run.path / 'mesh.ply'} ({trainer.train_time:.0f} s of training, "
+          f"{trainer.step} steps)")
     return 0

@@ -29,6 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from voxnero.device import default_device
+    from voxnero.safety.folder import RunFolder
     from voxnero.synth.make import make_scene
 
     if args.target not in SHAPES:
@@ -36,8 +37,9 @@ def run(args: argparse.Namespace) -> int:
                           fix=f"use one of {', '.join(SHAPES)}")
     cfg = resolve(SynthConfig, "synth", args.preset, args.overrides)
     t0 = time.perf_counter()
-    out = make_scene(args.target, args.out, cfg, progress=True,
-                     device=default_device(args.device))
+    with RunFolder(args.out, "synth"):  # a usable folder, one writer at a time
+        out = make_scene(args.target, args.out, cfg, progress=True,
+                         device=default_device(args.device))
     print(f"synth {args.target}: {cfg.n_train} train + {cfg.n_test} test views at "
           f"{cfg.resolution}x{cfg.resolution}, {cfg.spp} spp in {time.perf_counter() - t0:.1f} s"
           f" -> {out}")

@@ -115,6 +115,12 @@ class MaterialConfig:
         "log_every": at_least(1)}
     """Allowed values (:func:`voxnero.config.check_numbers`), checked before ``validate``;
     ``lr_decay`` > 0: it is raised to a power (0 would stop training at the first step)."""
+    FREE_ON_RESUME: ClassVar[tuple[str, ...]] = (
+        "threads", "texture_size", "eval_views", "checkpoint_every", "log_every",
+        "render.eval_scale", "render.eval_subpixels")
+    """Keys a resume may change (exports, evaluation, logging, cadence); any other key shapes
+    the model, and a checkpoint trained with another value is refused
+    (:mod:`voxnero.safety.fingerprint`)."""
 
     iters: int = 1000
     batch: int = 1024

@@ -1,7 +1,10 @@
 """Stage-2 training loop: materials and env map on the fixed mesh.
 
 Owns the loop, the optimisers, the learning-rate schedule, checkpoints (``checkpoint.pt``,
-resumed automatically) and the progress bar; the physics lives in
+resumed automatically; with the run's fingerprint, so that a resume on another mesh, scene or
+other settings is refused; never with NaN/Inf state; written after the step during which
+SIGINT/SIGTERM arrived, :mod:`voxnero.safety`) and the progress bar; a loss that stays non-finite
+stops the run (:mod:`voxnero.safety.guard`). The physics lives in
 :mod:`voxnero.material.render`. Loss, per step::
 
     mean |srgb(clip(L_pred)) - srgb(L_target)|²  over object pixels (Monte Carlo L_pred)
@@ -22,6 +25,7 @@ from typing import Any
 
 import torch
 
+from voxnero.errors import RunFolderError
 from voxnero.io.color import linear_to_srgb
 from voxnero.material.config import MaterialConfig
 from voxnero.material.field import make_field
@@ -30,6 +34,12 @@ from voxnero.material.render import Strategies, env_sampler, shade
 from voxnero.material.surface import Geometry, SurfaceCache
 from voxnero.render.envmap import envmap_lookup
 from voxnero.render.sampling import sample_cosine
+from voxnero.safety import fingerprint
+from voxnero.safety.guard import NonFiniteGuard, check_finite, nonfinite
+from voxnero.safety.stop import GracefulStop
+
+NONFINITE_FIX = ("lower lr_material / lr_env, check the mesh (input frame) and the scene's "
+                 "images, then re-run with --fresh")
 
 
 def srgb_clipped(lin: torch.Tensor) -> torch.Tensor:
@@ -85,7 +95,7 @@ class MaterialTrainer:
 
     def __init__(self, cfg: MaterialConfig, geom: Geometry, cache: SurfaceCache,
                  log: Callable[[str], None] = print, device: torch.device | str = "cpu",
-                 env_init: torch.Tensor | None = None):
+                 env_init: torch.Tensor | None = None, sources: dict[str, str] | None = None):
         """Args:
             cfg: resolved stage-2 config.
             geom: fixed mesh (unit frame).
@@ -94,6 +104,8 @@ class MaterialTrainer:
             device: torch device of the parameters (Open3D casts stay on the CPU).
             env_init: (H, W, 3) linear map to start from (default: background pixels averaged
                 into a map of height ``light.env_height[0]``).
+            sources: digests of what the run is made from (``{"scene": ..., "mesh": ...}``,
+                :mod:`voxnero.safety.fingerprint`), saved in checkpoints and checked on resume.
         """
         self.device = torch.device(device)
         geom = geom.to(self.device)
@@ -123,6 +135,8 @@ class MaterialTrainer:
             f"{'on' if self.visibility else 'off'}; env-map importance sampling "
             f"{'on' if self.decisions['env_sampling'] else 'unavailable (shading core)'}")
         self.step = 0
+        self.sources = dict(sources or {})
+        self.guard = NonFiniteGuard("material", self._nonfinite_cause, NONFINITE_FIX)
         self._make_optimisers()
 
     # ------------------------------------------------------------------ setup
@@ -226,13 +240,37 @@ class MaterialTrainer:
         loss = sum(terms.values())
         self.opt_mat.zero_grad(set_to_none=True)
         self.opt_env.zero_grad(set_to_none=True)
-        loss.backward()
-        self.opt_mat.step()
-        self.opt_env.step()
+        finite = bool(torch.isfinite(loss))
+        if finite:
+            loss.backward()
+            params = [*self.field.parameters(), *self.env.parameters()]
+            finite = all(bool(torch.isfinite(p.grad).all()) for p in params
+                         if p.grad is not None)
+        if finite:
+            self.opt_mat.step()
+            self.opt_env.step()
+        else:  # never let one bad batch poison the parameters: skip the update
+            self.opt_mat.zero_grad(set_to_none=True)
+            self.opt_env.zero_grad(set_to_none=True)
+        self.guard.update(finite, self.step, last=self.step + 1 >= self.cfg.iters)
         self.step += 1
         out = {k: float(v.detach()) for k, v in terms.items()}
         out["loss"] = float(loss.detach())
         return out
+
+    def _nonfinite_cause(self) -> str:
+        """The likely cause of a loss that stays non-finite (data first, then state)."""
+        c = self.cache
+        if nonfinite([("rgb", c.rgb), ("bg_rgb", c.bg_rgb)]):
+            return "the training images hold NaN/Inf pixels (check the scene's image files)"
+        if nonfinite([("x", c.x), ("n", c.n)]):
+            return "the mesh has NaN/Inf vertices or degenerate triangles (check the mesh file)"
+        bad = nonfinite([*self.field.named_parameters(), *self.env.named_parameters()])
+        if bad:
+            return (f"the {', '.join(bad[:3])} became NaN/Inf: lr_material={self.cfg.lr_material:g}"
+                    f" or lr_env={self.cfg.lr_env:g} too high for this scene")
+        return (f"the settings (lr_material={self.cfg.lr_material:g}, lr_env="
+                f"{self.cfg.lr_env:g}, loss weights) or an env map that overflows")
 
     # ------------------------------------------------------------------ loop
     def fit(self, ckpt: Path | None = None, progress: bool = True) -> dict[str, float]:
@@ -247,36 +285,62 @@ class MaterialTrainer:
             self.load(ckpt)
             self.log(f"[material] resumed from {ckpt} at step {self.step}")
         t0 = time.perf_counter()
+        start = self.step
         last: dict[str, float] = {}
         bar = tqdm(total=self.cfg.iters, initial=self.step, disable=not progress,
                    desc="material", dynamic_ncols=True, mininterval=1.0)
         ema = None
-        while self.step < self.cfg.iters:
-            last = self.train_step()
-            ema = self._mse if ema is None else 0.95 * ema + 0.05 * self._mse
-            bar.update(1)
-            if self.step % self.cfg.log_every == 0 or self.step == self.cfg.iters:
-                psnr = -10 * math.log10(max(ema, 1e-12))
-                bar.set_postfix(obj_psnr=f"{psnr:.2f}", bg=f"{last.get('background', 0):.2e}")
-                if not progress:
-                    self.log(f"[material] step {self.step}/{self.cfg.iters} object PSNR(ema) "
-                             f"{psnr:.2f} dB, background mse {last.get('background', 0):.2e}")
-            if ckpt is not None and self.cfg.checkpoint_every and \
-                    self.step % self.cfg.checkpoint_every == 0:
-                self.save(ckpt)
+        with GracefulStop() as stop:
+            while self.step < self.cfg.iters:
+                last = self.train_step()
+                ema = self._mse if ema is None else 0.95 * ema + 0.05 * self._mse
+                bar.update(1)
+                if self.step % self.cfg.log_every == 0 or self.step == self.cfg.iters:
+                    psnr = -10 * math.log10(max(ema, 1e-12))
+                    bar.set_postfix(obj_psnr=f"{psnr:.2f}",
+                                    bg=f"{last.get('background', 0):.2e}")
+                    if not progress:
+                        self.log(f"[material] step {self.step}/{self.cfg.iters} object "
+                                 f"PSNR(ema) {psnr:.2f} dB, background mse "
+                                 f"{last.get('background', 0):.2e}")
+                if ckpt is not None and self.cfg.checkpoint_every and \
+                        self.step % self.cfg.checkpoint_every == 0:
+                    self.save(ckpt)
+                if stop.flag:  # Ctrl-C / SIGTERM during this step: it is complete now
+                    bar.close()
+                    if ckpt is not None:
+                        self.save(ckpt)
+                    self.log(f"[material] stopped at step {self.step}"
+                             + ("; checkpoint saved, re-run the same command to resume"
+                                if ckpt is not None else ""))
+                    raise KeyboardInterrupt
         bar.close()
-        if ckpt is not None:
+        if ckpt is not None and self.step > start:
             self.save(ckpt)
         last["seconds"] = time.perf_counter() - t0
         last["steps"] = self.step
         return last
 
     # ------------------------------------------------------------------ checkpoints
+    def fingerprint(self) -> dict:
+        """What this run is made from: :attr:`sources` and the settings that shape the model."""
+        return fingerprint.make(self.cfg, **self.sources)
+
     def save(self, path: Path) -> None:
-        """Write a checkpoint (atomically)."""
+        """Write a checkpoint (atomically).
+
+        Raises:
+            TrainingError: the parameters hold NaN/Inf (nothing written).
+            RunFolderError: the checkpoint's folder was removed during the run.
+        """
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        state = {"step": self.step, "level": self.level, "field": self.field.state_dict(),
+        check_finite([*self.field.state_dict().items(), ("env", self.env.log_rad)], path,
+                     NONFINITE_FIX)
+        if not path.parent.is_dir():
+            raise RunFolderError("the run folder was removed during the run", path=path.parent,
+                                 fix="re-run the command (into this --out it starts over)")
+        state = {"fingerprint": self.fingerprint(), "step": self.step, "level": self.level,
+                 "field": self.field.state_dict(),
                  "env": self.env.log_rad.detach().clone(),
                  "opt_mat": self.opt_mat.state_dict(), "opt_env": self.opt_env.state_dict(),
                  "gen": self.gen.get_state()}
@@ -287,6 +351,10 @@ class MaterialTrainer:
     def load(self, path: Path) -> None:
         """Restore a checkpoint written by :meth:`save`."""
         state = torch.load(path, map_location=self.device, weights_only=True)
+        if not fingerprint.check_resume(state.get("fingerprint"), self.fingerprint(), path,
+                                        "material"):
+            self.log(f"[material] note: {path} predates run fingerprints; resuming without "
+                     "checking its mesh, scene and settings")
         self.step, self.level = int(state["step"]), int(state["level"])
         self.field.load_state_dict(state["field"])
         self.env = EnvLight(torch.exp(state["env"]).to(self.device))

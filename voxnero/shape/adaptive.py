@@ -35,6 +35,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from voxnero.safety.folder import atomic_write_text
+
 SELF_OCCLUSION_MIN = 0.005
 """Fraction of the cameras' reflected view rays that must hit the object itself for the
 occlusion/indirect light model to be switched on. Set just above what a convex object measures
@@ -276,6 +278,4 @@ def write_decisions(path: str | Path, decisions: list[Decision]) -> Path:
             hist = out[name].pop("history", [])
             rec["history"] = hist + [out[name]]
         out[name] = rec
-    path = Path(path)
-    path.write_text(json.dumps(out, indent=2, default=str))
-    return path
+    return atomic_write_text(path, json.dumps(out, indent=2, default=str))

@@ -253,6 +253,12 @@ class ShapeConfig:
         "threads": THREADS}
     """Allowed values; every section's table is checked before ``validate`` (and so before a
     command reads its scene)."""
+    FREE_ON_RESUME: ClassVar[tuple[str, ...]] = (
+        "threads", "mesh_res", "eval_mesh_res", "fit_rays", "ckpt_every_s", "preview_every",
+        "eval_every_s")
+    """Keys a resume may change (outputs, logging, cadence, judging a finished race); any other
+    key shapes the model, and a checkpoint trained with another value is refused
+    (:mod:`voxnero.safety.fingerprint`)."""
 
     iters: int = 1500
     seed: int = 0

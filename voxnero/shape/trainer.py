@@ -4,16 +4,23 @@ Orchestration only; the physics lives in :mod:`voxnero.shape.renderer` and the l
 :mod:`voxnero.shape.losses`. Outputs in the run folder:
 
 * ``mesh.ply`` — marching cubes of the final SDF grid, cleaned, in the scene's **input frame**;
-* ``checkpoint.pt`` — everything needed to resume (written periodically, on SIGINT/SIGTERM and
-  at the end); re-running the same command resumes from it;
+* ``checkpoint.pt`` — everything needed to resume (written periodically, after the step during
+  which SIGINT/SIGTERM arrived, and at the end) and the run's fingerprint (scene and the settings
+  that shape the model, :mod:`voxnero.safety.fingerprint`): re-running the same command resumes
+  from it, bit-identically; another scene or other settings are refused (``--fresh``). NaN/Inf
+  state is never saved, and a loss that stays non-finite stops the run
+  (:mod:`voxnero.safety.guard`);
 * ``log.jsonl`` — one JSON object per logged step: ``time`` (training seconds, excluding
   evaluation), ``step``, ``loss``, ``psnr``, ``s``, ``res`` and, for scenes with ground truth,
   ``chamfer`` entries (time-to-Chamfer curves);
 * ``preview/`` — normal map and colour PNGs of a training view at intervals;
-* ``config.yaml`` — the resolved config; ``shape.json`` — decisions (switches) and summary;
+* ``config.yaml`` — the resolved config (written by the command); ``shape.json`` — decisions
+  (switches) and summary;
 * ``decisions.json`` — every adaptive decision with its setting, reason and evidence
   (:mod:`voxnero.shape.adaptive`), rewritten whenever one is taken;
-* ``sdf.npz`` — the final SDF grid (unit frame) and ``envmap.exr`` — the learned env map;
+* ``sdf.npz`` — the final SDF grid (unit frame) and ``envmap.exr`` — the learned env map
+  (``mesh.ply``, ``sdf.npz``, ``envmap.exr`` and ``shape.json`` go to ``outputs``: the command
+  stages them and moves them in when the run succeeded, :mod:`voxnero.safety.folder`);
 * ``starts/r<radius>/`` (and ``starts/r<radius>_rough<value>/`` for
   ``light.init_roughness_candidates``) — with a race of starts (``grid.init_trial`` = 1, the
   default), each start's complete run (same files); the kept one's mesh, grids, env map and
@@ -27,7 +34,6 @@ import copy
 import json
 import math
 import os
-import signal
 import time
 from collections.abc import Callable
 from dataclasses import asdict, replace
@@ -39,8 +45,12 @@ import torch
 
 from voxnero.cameras.rays import image_rays, pixel_rays, random_pixels
 from voxnero.config import to_dict
+from voxnero.errors import RunFolderError
 from voxnero.fields.grid import gaussian_blur3d, resample
 from voxnero.fields.lights import IndirectLight, OcclusionNet
+from voxnero.safety import fingerprint
+from voxnero.safety.guard import NonFiniteGuard, check_finite, nonfinite
+from voxnero.safety.stop import GracefulStop
 from voxnero.shape import adaptive, losses
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.neus import sharpness_schedule
@@ -48,6 +58,11 @@ from voxnero.shape.occlusion import OcclusionTargets, trim_mesh
 from voxnero.shape.renderer import ShapeModel, Switches, render_rays
 
 CKPT = "checkpoint.pt"
+STATE = ("checkpoint.pt", "checkpoint.tmp", "log.jsonl", "decisions.json", "preview", "starts")
+"""Run state of a folder (``--fresh`` deletes it to start over; outputs are replaced when the
+new run succeeds)."""
+NONFINITE_FIX = ("lower the learning rates (optim.lr_sdf, optim.lr_env ...) or check the "
+                 "scene's images and poses, then re-run with --fresh")
 
 
 def resolve_switches(cfg: ShapeConfig, scene: Any,
@@ -110,28 +125,6 @@ def adapt_config(cfg: ShapeConfig, scene: Any,
     return out
 
 
-class _Stop:
-    """SIGTERM → set a flag the loop checks (it saves and stops cleanly)."""
-
-    def __init__(self) -> None:
-        self.flag = False
-        self._old = None
-
-    def __enter__(self) -> _Stop:
-        try:
-            self._old = signal.signal(signal.SIGTERM, self._handler)
-        except ValueError:  # not the main thread
-            self._old = None
-        return self
-
-    def _handler(self, signum, frame) -> None:
-        self.flag = True
-
-    def __exit__(self, *exc) -> None:
-        if self._old is not None:
-            signal.signal(signal.SIGTERM, self._old)
-
-
 class ShapeTrainer:
     """Train the stage-1 model on a scene's train split and write the run folder.
 
@@ -143,15 +136,18 @@ class ShapeTrainer:
         device: torch device.
         progress: show a tqdm bar.
         log: function for one-line messages.
+        outputs: folder of the final outputs (default: ``out``); a command passes its run
+            folder's staging folder, so that they appear only when the run succeeded.
     """
 
     def __init__(self, cfg: ShapeConfig, scene: Any, out: str | Path,
                  device: torch.device | str = "cpu", progress: bool = True,
-                 log: Callable[[str], None] = print):
+                 log: Callable[[str], None] = print, outputs: str | Path | None = None):
         self.cfg = cfg
         self.scene = scene
         self.out = Path(out)
         self.out.mkdir(parents=True, exist_ok=True)
+        self.outputs = self.out if outputs is None else Path(outputs)
         self.device = torch.device(device)
         self.progress = progress
         self.log = log
@@ -173,6 +169,9 @@ class ShapeTrainer:
         self.sw = resolve_switches(cfg, scene, self.decisions)
         self.occ_pending = cfg.light.occlusion == "auto"
         """An "auto" occlusion not yet measured on (re-measured until ``decide_until``)."""
+        self.fingerprint = fingerprint.make(cfg, scene=fingerprint.scene_digest(scene))
+        """Scene and model-shaping settings, saved in the checkpoint and checked on resume."""
+        self.guard = NonFiniteGuard("shape", self._nonfinite_cause, NONFINITE_FIX)
         self.model = ShapeModel(cfg, self.sw).to(self.device)
         self.coarse_voxel = self.model.sdf.voxel
         """Voxel of the first grid: smoothing lengths are fixed in space across resolutions."""
@@ -232,10 +231,20 @@ class ShapeTrainer:
 
     # ------------------------------------------------------------------ checkpoints
     def save_checkpoint(self) -> Path:
-        """Atomically write ``checkpoint.pt``."""
+        """Atomically write ``checkpoint.pt`` (with the run's fingerprint).
+
+        Raises:
+            TrainingError: the model or the optimiser state holds NaN/Inf (nothing written).
+            RunFolderError: the run folder was removed.
+        """
         path = self.out / CKPT
+        check_finite(self._state_tensors(), path, NONFINITE_FIX)
+        if not self.out.is_dir():
+            raise RunFolderError("the run folder was removed during the run", path=self.out,
+                                 fix="re-run the command (into this --out it starts over)")
         tmp = path.with_suffix(".tmp")
-        torch.save({"model": self.model.state_dict(), "opt": self.opt.state_dict(),
+        torch.save({"fingerprint": self.fingerprint,
+                    "model": self.model.state_dict(), "opt": self.opt.state_dict(),
                     "step": self.step, "train_time": self.train_time,
                     "res": self.model.sdf.res, "gen": self.gen.get_state(),
                     "config": to_dict(self.cfg), "switches": asdict(self.sw),
@@ -250,8 +259,9 @@ class ShapeTrainer:
         if not path.is_file():
             return False
         ck = torch.load(path, map_location=self.device, weights_only=False)
-        if ck["config"] != to_dict(self.cfg):
-            self.log("[shape] note: the config differs from the checkpoint's; resuming anyway")
+        if not fingerprint.check_resume(ck.get("fingerprint"), self.fingerprint, path, "shape"):
+            self.log(f"[shape] note: {path} predates run fingerprints; resuming without "
+                     "checking its scene and settings")
         self.set_resolution(int(ck["res"]))
         sw = ck.get("switches", {})
         if sw.get("occlusion") and self.model.occlusion is None:  # switched on by "auto"
@@ -355,10 +365,38 @@ class ShapeTrainer:
         """:meth:`train_step`, then advance the step, the training clock and the bar."""
         t0 = time.perf_counter()
         rec = self.train_step()
+        self.guard.update(math.isfinite(rec["loss"]), self.step,
+                          last=self.step + 1 >= self.cfg.iters)
         self.step += 1
         self.train_time += time.perf_counter() - t0
         bar.update(1)
         return rec
+
+    def _state_tensors(self) -> list[tuple[str, torch.Tensor]]:
+        """Parameters and optimiser moments, named (what a checkpoint saves)."""
+        named = list(self.model.state_dict().items())
+        for i, st in enumerate(self.opt.state.values()):
+            named += [(f"optimiser state {i}.{k}", v) for k, v in st.items()
+                      if isinstance(v, torch.Tensor)]
+        return named
+
+    def _nonfinite_cause(self) -> str:
+        """The likely cause of a loss that stays non-finite, checked in the order of the data
+        flow: photos, cameras, model state, else the settings."""
+        if not bool(torch.isfinite(self.images).all()):
+            return "the training images hold NaN/Inf pixels (check the scene's image files)"
+        cams = [(n, getattr(self.cams, n)) for n in ("K", "c2w")
+                if isinstance(getattr(self.cams, n, None), torch.Tensor)]
+        if nonfinite(cams):
+            return "the camera poses or intrinsics hold NaN/Inf (check the scene's pose file)"
+        bad = nonfinite(self.model.named_parameters())
+        if bad:
+            return (f"the model's {', '.join(bad[:3])} became NaN/Inf: learning rates too high "
+                    "(optim.lr_*) for this scene")
+        o = self.cfg.optim
+        return (f"the settings (learning rates optim.lr_sdf={o.lr_sdf:g}, "
+                f"optim.lr_env={o.lr_env:g}; loss weights; sampling.rays="
+                f"{self.cfg.sampling.rays}) or a degenerate scene (no pixel sees the object)")
 
     # ------------------------------------------------------------------ first look
     def _fresh_model(self, radius: float) -> None:
@@ -504,8 +542,9 @@ class ShapeTrainer:
                 {"values": values, "psnr": fits, "radius": radii[k_radius]}, self.cfg.iters))
         name, _, win = runs[best_k]
         assert win is not None
+        self.outputs.mkdir(parents=True, exist_ok=True)
         for fname in ("mesh.ply", "sdf.npz", "envmap.exr", "shape.json"):
-            shutil.copyfile(win.out / fname, self.out / fname)
+            shutil.copyfile(win.out / fname, self.outputs / fname)
         with open(self.out / "log.jsonl", "w") as fh:
             for other, _, _ in runs:
                 src = self.out / "starts" / other / "log.jsonl"
@@ -521,11 +560,11 @@ class ShapeTrainer:
         for d in decisions:
             self.log(d.line())
         self.write_decisions()
-        summary = json.loads((self.out / "shape.json").read_text())
+        summary = json.loads((self.outputs / "shape.json").read_text())
         summary.update(train_time_s=seconds, race_steps=steps, init_radius=radii[k_radius],
                        init_roughness=win.cfg.light.init_roughness)
-        (self.out / "shape.json").write_text(json.dumps(summary, indent=2))
-        return self.out / "mesh.ply"
+        (self.outputs / "shape.json").write_text(json.dumps(summary, indent=2))
+        return self.outputs / "mesh.ply"
 
     @torch.no_grad()
     def fit_psnr(self, chunk: int = 8192) -> float:
@@ -706,17 +745,19 @@ class ShapeTrainer:
         from voxnero.io.exr import write_exr
         from voxnero.mesh.io import save_mesh
 
+        out = self.outputs
+        out.mkdir(parents=True, exist_ok=True)
         mesh = self.extract(self.cfg.mesh_res)
-        path = save_mesh(self.out / "mesh.ply", mesh, self.scene.norm)
+        path = save_mesh(out / "mesh.ply", mesh, self.scene.norm)
         g = self.model.sdf
-        np.savez_compressed(self.out / "sdf.npz", sdf=g.grid.data[0].cpu().numpy(),
+        np.savez_compressed(out / "sdf.npz", sdf=g.grid.data[0].cpu().numpy(),
                             bounds=g.bounds.cpu().numpy())
-        write_exr(self.out / "envmap.exr", self.model.env.image().detach().cpu().numpy())
+        write_exr(out / "envmap.exr", self.model.env.image().detach().cpu().numpy())
         self.write_decisions()
         summary = {"switches": asdict(self.sw), "steps": self.step,
                    "train_time_s": self.train_time, "grid_res": g.res,
                    "n_vertices": len(mesh.vertices), "n_triangles": len(mesh.triangles)}
-        (self.out / "shape.json").write_text(json.dumps(summary, indent=2))
+        (out / "shape.json").write_text(json.dumps(summary, indent=2))
         return path
 
     # ------------------------------------------------------------------ loop
@@ -742,7 +783,7 @@ class ShapeTrainer:
                    dynamic_ncols=True, desc="shape")
         last_ckpt = time.perf_counter()
         log_every = max(1, cfg.iters // 200)
-        with open(self.out / "log.jsonl", "a") as fh, _Stop() as stop:
+        with open(self.out / "log.jsonl", "a") as fh, GracefulStop() as stop:
             if self.step == 0 and cfg.grid.init_candidates and cfg.grid.init_trial < 1.0:
                 try:
                     self.choose_init(fh, bar, stop)
@@ -779,6 +820,10 @@ class ShapeTrainer:
                         raise KeyboardInterrupt
             except KeyboardInterrupt:
                 bar.close()
+                if stop.forced:  # a second signal cut a step short: keep the last checkpoint
+                    self.log(f"[shape] stopped during step {self.step}; the last checkpoint is "
+                             "kept, re-run the same command to resume from it")
+                    raise
                 self.save_checkpoint()
                 self.log(f"[shape] stopped at step {self.step}; checkpoint saved, re-run the "
                          "same command to resume")
