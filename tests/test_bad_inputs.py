@@ -370,3 +370,162 @@ def test_any_bad_number_is_refused_by_its_command(tmp_path, capsys, inputs, entr
     rc, err = run_cli(argv_for(command, inputs, out, extra=(override,)), capsys)
     assert_clean_error(rc, err, command, [name if command == "info" else key])
     assert not out.exists()
+
+
+# --------------------------------------------------------------------------------------------
+# unusable --out, and an output folder removed during the run
+# --------------------------------------------------------------------------------------------
+
+OUT_COMMANDS = ["shape", "material", "eval", "relight", "batch", "synth"]
+
+
+def _existing_file(tmp: Path) -> tuple[Path, str]:
+    (tmp / "taken").write_text("not a folder")
+    return tmp / "taken", "is an existing file"
+
+
+def _under_a_file(tmp: Path) -> tuple[Path, str]:
+    (tmp / "plain.txt").write_text("a file")
+    return tmp / "plain.txt" / "out", "plain.txt is a file"
+
+
+def _read_only(tmp: Path) -> tuple[Path, str]:
+    (tmp / "ro").mkdir()
+    (tmp / "ro").chmod(0o555)
+    return tmp / "ro", "not writable"
+
+
+BAD_OUTS: dict[str, Callable[[Path], tuple[Path, str]]] = {
+    "existing_file": _existing_file, "under_a_file": _under_a_file, "read_only": _read_only}
+"""--out defect -> builder returning (the --out path, what the message must say)."""
+
+
+@pytest.fixture
+def batch_manifest(tmp_path) -> Path:
+    """A manifest of one scene folder that does not exist (a batch that got past --out would
+    only write an error row)."""
+    path = tmp_path / "manifest.yaml"
+    path.write_text("scenes:\n  - nowhere\n")
+    return path
+
+
+@pytest.mark.parametrize("command", OUT_COMMANDS)
+@pytest.mark.parametrize("case", list(BAD_OUTS))
+def test_unusable_out_is_refused(tmp_path, capsys, monkeypatch, inputs, batch_manifest, command,
+                                 case):
+    """--out an existing file, a path under a file or a read-only folder were FileExistsError /
+    NotADirectoryError / PermissionError tracebacks."""
+    import os
+
+    from voxnero.safety import folder
+
+    out, said = BAD_OUTS[case](tmp_path)
+    if case == "read_only" and os.geteuid() == 0:  # root writes anywhere: deny as the OS would
+        real = os.open
+
+        def deny(path, *a, **k):
+            if str(path).startswith(str(out)):
+                raise PermissionError(13, "Permission denied", str(path))
+            return real(path, *a, **k)
+
+        monkeypatch.setattr(folder.os, "open", deny)
+    argv = argv_for(command, {**inputs, "manifest": batch_manifest}, out)
+    rc, err = run_cli(argv, capsys)
+    assert_clean_error(rc, err, command, [str(out), said])
+    if case == "existing_file":
+        assert out.read_text() == "not a folder"
+
+
+def _remove_at_step(module, name: str, out: Path, at: int, monkeypatch) -> None:
+    """Wrap ``module.name`` (a training step) to delete ``out`` when it is called the
+    ``at``-th time."""
+    import shutil
+
+    orig = getattr(module, name)
+    calls = {"n": 0}
+
+    def step(self, *a, **k):
+        calls["n"] += 1
+        if calls["n"] == at:
+            shutil.rmtree(out)
+        return orig(self, *a, **k)
+
+    monkeypatch.setattr(module, name, step)
+
+
+def _sphere_mesh(path: Path) -> Path:
+    """The fixture scenes' sphere as a mesh file in their input frame."""
+    import open3d as o3d
+    from fixtures.scenes import SPHERE_C, SPHERE_R
+
+    mesh = o3d.geometry.TriangleMesh.create_sphere(SPHERE_R, 12).translate(SPHERE_C)
+    o3d.io.write_triangle_mesh(str(path), mesh)
+    return path
+
+
+@pytest.mark.parametrize("command", ["shape", "material"])
+def test_output_folder_removed_mid_run(tmp_path, capsys, monkeypatch, inputs, command):
+    """The folder deleted during training was a RuntimeError / FileNotFoundError traceback."""
+    from voxnero.material.trainer import MaterialTrainer
+    from voxnero.shape.trainer import ShapeTrainer
+
+    out = tmp_path / "out"
+    if command == "shape":
+        _remove_at_step(ShapeTrainer, "train_step", out, 2, monkeypatch)
+        extra: tuple[str, ...] = ("iters=4", "ckpt_every_s=0")
+    else:
+        inputs = {**inputs, "mesh": _sphere_mesh(tmp_path / "sphere.ply")}
+        _remove_at_step(MaterialTrainer, "train_step", out, 2, monkeypatch)
+        extra = ("iters=4", "checkpoint_every=1", "eval_views=0", "texture_size=16",
+                 "light.env_height=[8]", "bg_batch=64", "batch=16")
+    rc, err = run_cli(argv_for(command, inputs, out, extra=extra), capsys)
+    assert_clean_error(rc, err, command, [str(out), "removed"])
+    assert not (out / "mesh.ply").exists() and not (out / "model.glb").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# the issue's last row: a 1x1 env map, a missing texture, an empty CSV manifest
+# --------------------------------------------------------------------------------------------
+
+def _env_1x1(tmp: Path, inputs: dict[str, Path]) -> list[str]:
+    write_exr(tmp / "tiny_env.exr", np.full((1, 1, 3), 0.5, np.float32), half=False)
+    return ["relight", str(inputs["glb"]), "--env", str(tmp / "tiny_env.exr"), "--out",
+            str(tmp / "out"), *FAST["relight"]]
+
+
+def _missing_texture(tmp: Path, inputs: dict[str, Path]) -> list[str]:
+    import shutil
+
+    src = inputs["glb"].parent
+    (tmp / "asset").mkdir()
+    for name in ("model.obj", "model.mtl", "model_metallic.png", "model_roughness.png"):
+        shutil.copy(src / name, tmp / "asset" / name)  # model_albedo.png left behind
+    return ["relight", str(tmp / "asset" / "model.obj"), "--env", str(inputs["env"]), "--out",
+            str(tmp / "out"), *FAST["relight"]]
+
+
+def _csv(text: str) -> Callable[[Path, dict[str, Path]], list[str]]:
+    def build(tmp: Path, inputs: dict[str, Path]) -> list[str]:
+        (tmp / "scenes.csv").write_text(text)
+        return ["batch", str(tmp / "scenes.csv"), "--out", str(tmp / "out"), *FAST["batch"]]
+    return build
+
+
+LAST_ROW: dict[str, tuple[Callable[[Path, dict[str, Path]], list[str]], list[str]]] = {
+    "env_map_1x1": (_env_1x1, ["tiny_env.exr", "1 x 1 pixels", "width = 2 x height"]),
+    "missing_texture": (_missing_texture, ["model_albedo.png", "map_Kd of model.mtl",
+                                           "model.glb"]),
+    "empty_csv_manifest": (_csv(""), ["scenes.csv", "empty", "path,name,overrides"]),
+    "csv_manifest_header_only": (_csv("path,name,overrides\n"),
+                                 ["scenes.csv", "no scenes", "one line per scene"]),
+}
+"""Case -> (builder of the command line, strings the message must contain: file, fix)."""
+
+
+@pytest.mark.parametrize("case", list(LAST_ROW))
+def test_last_row_names_the_file_and_the_fix(tmp_path, capsys, inputs, case):
+    build, named = LAST_ROW[case]
+    argv = build(tmp_path, inputs)
+    rc, err = run_cli(argv, capsys)
+    assert_clean_error(rc, err, argv[0], named)
+    assert not (tmp_path / "out").exists()
