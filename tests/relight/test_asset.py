@@ -127,3 +127,40 @@ def test_missing_things_are_data_errors(tmp_path):
         load_asset(tmp_path / "x.stl")
     with pytest.raises(DataError, match="ground-truth"):
         load_asset(f"gt:{tmp_path}")
+
+
+def _reconstruct_folder(root: Path, glb: Path, obj: Path, stage1: bool = True) -> Path:
+    """A ``voxnero reconstruct`` output folder: ``material/`` (model.glb + sidecar, model.obj)
+    and ``shape/mesh.ply``."""
+    import shutil
+
+    mat = root / "material"
+    mat.mkdir(parents=True)
+    for f in (glb, glb.with_suffix(".glb.json"), obj, *obj.parent.glob("*.mtl"),
+              *obj.parent.glob("*.png")):
+        shutil.copy(f, mat / f.name)
+    if stage1:
+        (root / "shape").mkdir()
+        (root / "shape" / "mesh.ply").write_text("ply\n")  # only its path is used here
+    return root
+
+
+def test_reconstruct_folder_loads_its_material_run(sphere_asset_files, tmp_path):
+    glb, obj, tm, _ = sphere_asset_files
+    run = _reconstruct_folder(tmp_path / "recon", glb, obj)
+    a = load_asset(run)
+    ref = load_glb(glb)
+    assert a.source == str(run / "material" / "model.glb")
+    np.testing.assert_array_equal(a.vertices.numpy(), ref.vertices.numpy())
+    np.testing.assert_array_equal(a.triangles.numpy(), ref.triangles.numpy())
+    assert a.stage1_mesh == run / "shape" / "mesh.ply"
+    # the material folder itself still loads, without the sibling stage-1 mesh
+    assert load_asset(run / "material").stage1_mesh is None
+
+
+def test_reconstruct_folder_before_stage2_is_a_data_error(tmp_path):
+    (tmp_path / "material").mkdir()
+    (tmp_path / "shape").mkdir()
+    with pytest.raises(DataError, match="material/model.glb") as e:
+        load_asset(tmp_path)
+    assert "reconstruct" in str(e.value)

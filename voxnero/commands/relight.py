@@ -3,8 +3,9 @@
 ``voxnero relight ASSET_OR_RUN --env MAP.exr|.hdr --out DIR [--scene SCENE [--split NAME] |
 --cameras transforms.json | --orbit] [--preset NAME] [key=value ...]``
 
-ASSET_OR_RUN is a ``voxnero material`` output folder (model.glb / model.obj), a model file, or
-the ground truth of a scene (``gt:SCENE`` or a scene folder with gt/mesh.ply + material.json).
+ASSET_OR_RUN is a ``voxnero material`` output folder (model.glb / model.obj), a ``voxnero
+reconstruct`` output folder (its ``material/``), a model file, or the ground truth of a scene
+(``gt:SCENE`` or a scene folder with gt/mesh.ply + material.json).
 Cameras: the ``relight.split`` split (default test) of ``--scene`` (or of the scene the asset
 names), a ``transforms.json``, or a turntable (``--orbit``; ``relight.orbit.frames=36``,
 ``orbit.elevation_deg``, ``orbit.distance``, ``orbit.size``). Keys: ``spp``, ``dirs``,

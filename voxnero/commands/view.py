@@ -3,7 +3,8 @@
 ``voxnero view ASSET_OR_RUN [--channel shaded|albedo|metallic|roughness|normals]
 [--screenshot out.png] [--cameras SCENE]``
 
-ASSET_OR_RUN is a ``voxnero material`` output folder, model.glb / model.obj, or ``gt:SCENE``.
+ASSET_OR_RUN is a ``voxnero reconstruct`` or ``voxnero material`` output folder, model.glb /
+model.obj, or ``gt:SCENE``.
 The asset is drawn with a PBR material (``defaultLit`` with its albedo / metallic / roughness
 maps) or one channel at a time; ``--cameras SCENE`` adds the scene's training cameras as frusta
 with their photos; a run folder's stage-1 mesh (when there is one) stands beside the final mesh.
@@ -24,7 +25,8 @@ DESCRIPTION = __doc__.split("\n\n", 1)[1]
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("target", metavar="ASSET_OR_RUN",
-                        help="run folder, model.glb / model.obj, or gt:SCENE")
+                        help="reconstruct or material run folder, model.glb / model.obj, "
+                             "or gt:SCENE")
     parser.add_argument("--channel", default="shaded",
                         help="shaded, albedo, metallic, roughness, normals; a comma list or 'all' "
                              "with --screenshot (default shaded)")

@@ -13,6 +13,8 @@ Sources (:func:`load_asset` picks by the path):
   have v up, so ``v_glTF = 1 − vt``.
 * a run folder: its ``model.glb`` (else ``model.obj``), plus the stage-1 ``mesh.ply`` when
   the run (or the stage-1 run its config names) has one, for the viewer.
+* a ``voxnero reconstruct`` output folder: the asset of its ``material/`` run, with the stage-1
+  mesh of its ``shape/`` run.
 * ground truth: ``gt:SCENE`` or a scene folder holding ``gt/mesh.ply`` + ``gt/material.json``
   (``"kind": "uniform"``: ``base_color`` linear, ``metallic``, ``roughness``).
 
@@ -494,12 +496,23 @@ def _stage1_of(run: Path) -> Path | None:
     return None
 
 
+def _load_run(run: Path) -> Asset | None:
+    """The asset of a ``voxnero material`` run folder (model.glb, else model.obj), with its
+    stage-1 mesh; None when the folder holds neither model."""
+    for name, fn in (("model.glb", load_glb), ("model.obj", load_obj)):
+        if (run / name).is_file():
+            a = fn(run / name)
+            a.stage1_mesh = _stage1_of(run)
+            return a
+    return None
+
+
 def load_asset(target: str | Path) -> Asset:
     """Load what the user pointed at (see the module docstring for the accepted forms).
 
     Args:
-        target: ``model.glb``, ``model.obj``, a run folder, ``gt:SCENE`` or a scene folder with
-            ``gt/``.
+        target: ``model.glb``, ``model.obj``, a ``material`` or ``reconstruct`` run folder,
+            ``gt:SCENE`` or a scene folder with ``gt/``.
 
     Returns:
         The :class:`Asset` in the scene's input frame.
@@ -520,14 +533,18 @@ def load_asset(target: str | Path) -> Asset:
         raise DataError(f"unsupported asset file type {suf!r}", path=p,
                         fix="pass model.glb / model.obj, a run folder or gt:SCENE")
     if p.is_dir():
-        for name, fn in (("model.glb", load_glb), ("model.obj", load_obj)):
-            if (p / name).is_file():
-                a = fn(p / name)
-                a.stage1_mesh = _stage1_of(p)
-                return a
+        a = _load_run(p)
+        if a is None and (p / "material").is_dir():  # a 'voxnero reconstruct' folder
+            a = _load_run(p / "material")
+            if a is not None and (p / "shape" / "mesh.ply").is_file():
+                a.stage1_mesh = p / "shape" / "mesh.ply"
+        if a is not None:
+            return a
         if (p / "gt" / "mesh.ply").is_file():
             return load_gt(p)
-        raise DataError("no asset here: looked for model.glb, model.obj, gt/mesh.ply", path=p,
-                        fix="pass a 'voxnero material' output folder, a model file or gt:SCENE")
+        raise DataError("no asset here: looked for model.glb, model.obj, material/model.glb, "
+                        "material/model.obj, gt/mesh.ply", path=p,
+                        fix="pass a 'voxnero material' or 'voxnero reconstruct' output folder "
+                            "(after its stage 2), a model file or gt:SCENE")
     raise DataError("no such file or folder", path=p,
                     fix="pass model.glb / model.obj, a run folder or gt:SCENE")
