@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import ClassVar
 
 import pytest
 import yaml
-from config_settings import is_list, numeric_fields, out_of_range, sections
+from config_settings import is_list, numeric_fields, out_of_range, resolved_presets, sections
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -110,6 +112,15 @@ def test_defaults_and_every_preset_are_in_range():
         for name, cls in sections().items():
             if name != "info":
                 resolve(cls, name, preset, [])
+
+
+def test_presets_resolve_as_recorded():
+    """The presets, raw and resolved, equal the record taken before they moved into
+    ``voxnero/configs/`` and were rewritten as block-style YAML (issue 24). A deliberate change
+    of a preset or a default rewrites the record: ``json.dump(resolved_presets(), f, indent=1,
+    sort_keys=True)`` into ``tests/fixtures/presets_resolved.json``."""
+    record = json.loads((Path(__file__).parent / "fixtures" / "presets_resolved.json").read_text())
+    assert resolved_presets() == record
 
 
 @dataclass

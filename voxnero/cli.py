@@ -29,7 +29,8 @@ def add_common(parser: argparse.ArgumentParser, target_help: str, default_preset
     """Add the shared arguments: TARGET, ``--preset``, ``--out``, ``--device`` and overrides."""
     parser.add_argument("target", metavar="SCENE_OR_RUN", help=target_help)
     parser.add_argument("--preset", default=default_preset,
-                        help=f"preset name in configs/ or a YAML path (default: {default_preset})")
+                        help=f"preset name (voxnero/configs/NAME.yaml) or a YAML path "
+                             f"(default: {default_preset})")
     parser.add_argument("--out", required=out_required, help="output folder")
     parser.add_argument("--device", default="auto", help="auto (CUDA if available), cpu or cuda")
     parser.add_argument("overrides", nargs="*", metavar="key=value",

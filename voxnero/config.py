@@ -1,15 +1,15 @@
-"""Configuration: a dataclass per component, YAML presets in ``configs/``, ``key=value`` overrides.
+"""Configuration: a dataclass per component, YAML presets, ``key=value`` overrides.
 
-A preset file (``configs/<name>.yaml``) is a mapping of sections, one per command stage
-(``shape:``, ``material:``, ``synth:`` ...). Each section is parsed into that stage's dataclass
-with :func:`from_dict`, which rejects unknown keys and checks every number (:func:`check_numbers`:
-finite, and inside the class's ``RANGES`` table) before the class's own ``validate()``; a
-command resolves its config before it reads any data, so a bad setting stops it before any
-work. Overrides are dotted paths into the preset
-(``shape.iters=3000``); inside a single-stage command the section may be left out
-(``iters=3000`` means ``shape.iters=3000`` for ``voxnero shape``). Values are parsed as YAML
-scalars (``1e-3``, ``true``, ``[64, 128]``). The resolved config is written beside every output
-with :func:`save_resolved` so that a run can be repeated exactly.
+A preset file (``voxnero/configs/<name>.yaml``, package data) is a mapping of sections, one
+per command stage (``shape:``, ``material:``, ``synth:`` ...). Each section is parsed into that
+stage's dataclass with :func:`from_dict`, which rejects unknown keys and checks every number
+(:func:`check_numbers`: finite, and inside the class's ``RANGES`` table) before the class's own
+``validate()``; a command resolves its config before it reads any data, so a bad setting stops
+it before any work. Overrides are dotted paths into the preset (``shape.iters=3000``); inside
+a single-stage command the section may be left out (``iters=3000`` means ``shape.iters=3000``
+for ``voxnero shape``). Values are parsed as YAML scalars (``1e-3``, ``true``, ``[64, 128]``).
+The resolved config is written beside every output with :func:`save_resolved` so that a run can
+be repeated exactly.
 """
 
 from __future__ import annotations
@@ -30,8 +30,9 @@ Switch = typing.Literal["auto", "on", "off"] | bool
 
 T = TypeVar("T")
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
-"""Where the named presets live (the repository's ``configs/``)."""
+CONFIG_DIR = Path(__file__).resolve().parent / "configs"
+"""Where the named presets live: ``voxnero/configs/``, package data (setup.cfg), so that an
+installed wheel finds them; the repository's top-level ``configs`` links there."""
 
 
 def available_presets() -> list[str]:
@@ -40,7 +41,7 @@ def available_presets() -> list[str]:
 
 
 def load_preset(name_or_path: str) -> dict[str, Any]:
-    """Load a preset by name (``configs/<name>.yaml``) or by path to a YAML file.
+    """Load a preset by name (``voxnero/configs/<name>.yaml``) or by path to a YAML file.
 
     Returns:
         The raw mapping of sections.

@@ -1,7 +1,7 @@
 """Configuration of stage 2 (``voxnero material``): one small dataclass per component.
 
-Presets set these in the ``material:`` section of ``configs/<preset>.yaml``; every key can be
-overridden on the command line (``iters=800``, ``render.spp_ggx=16``, ``field.kind=grid``).
+Presets set these in the ``material:`` section of ``voxnero/configs/<preset>.yaml``; every key
+can be overridden on the command line (``iters=800``, ``render.spp_ggx=16``, ``field.kind=grid``).
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """Configuration of stage 1 (``voxnero shape``): one small dataclass per component.
 
-Presets set these in the ``shape:`` section of ``configs/<preset>.yaml``; every key can be
-overridden on the command line (``grid.res=[48, 96]``, ``iters=3000``). Schedules are given as
-fractions of ``iters`` so that a preset scales with its length.
+Presets set these in the ``shape:`` section of ``voxnero/configs/<preset>.yaml``; every key
+can be overridden on the command line (``grid.res=[48, 96]``, ``iters=3000``). Schedules are
+given as fractions of ``iters`` so that a preset scales with its length.
 """
 
 from __future__ import annotations

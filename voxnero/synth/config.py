@@ -1,7 +1,7 @@
 """``SynthConfig``: settings of ``voxnero synth`` (the ``synth:`` section of a preset).
 
 Defaults are the ``tiny`` scene (64², 24 train + 8 test views), the unit-test size; the presets
-in ``configs/`` set larger ones. Overrides address nested keys, e.g.
+in ``voxnero/configs/`` set larger ones. Overrides address nested keys, e.g.
 ``voxnero synth torus --preset tiny --out DIR torus.tilt_deg=45 env.seed=3 spp=64``.
 Roughness values are perceptual r (GGX α = r²); albedo is linear RGB.
 
