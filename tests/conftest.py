@@ -12,6 +12,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import torch
+
 _TESTS = Path(__file__).resolve().parent
 for _d in [_TESTS, *sorted(p for p in _TESTS.iterdir()
                            if p.is_dir() and not p.name.startswith((".", "_")))]:
@@ -21,9 +23,4 @@ for _d in [_TESTS, *sorted(p for p in _TESTS.iterdir()
 # One torch thread: on a 2-core machine most test tensors are small, and with two OpenMP
 # threads element-wise kernels ran 15-40x slower whenever anything else used the CPU
 # (docs/BENCHMARKS.md, "Shading core"). Trainers choose their own count (config `threads`).
-try:
-    import torch
-
-    torch.set_num_threads(1)
-except ImportError:  # pragma: no cover - torch is a hard dependency
-    pass
+torch.set_num_threads(1)

@@ -55,12 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
     sub = parser.add_subparsers(dest="command", metavar="<command>")
     for name in COMMANDS:
-        try:
-            mod = importlib.import_module(f"voxnero.commands.{name}")
-        except ModuleNotFoundError as e:
-            if e.name != f"voxnero.commands.{name}":
-                raise
-            continue
+        mod = importlib.import_module(f"voxnero.commands.{name}")
         p = sub.add_parser(mod.NAME, help=mod.HELP,
                            description=getattr(mod, "DESCRIPTION", mod.HELP))
         p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,

@@ -10,8 +10,9 @@ Light arriving along a reflected direction ``r`` at a surface point ``x`` is, as
   reflections, pre-filtered by roughness through a mip chain, (3) diffuse light from its
   order-2 SH projection (cosine convolution). The DESIGN probe measured this explicit map better
   than a free colour net; it is also directly exportable.
-* :class:`IndirectLight` — radiance that a reflected ray picks up from the object itself, a small
-  MLP on grid features at ``x`` and the direction ``r`` (linear radiance ≥ 0).
+* :class:`IndirectNet` — radiance that a reflected ray picks up from the object itself, a small
+  MLP on grid features at ``x`` and the direction ``r`` (linear radiance ≥ 0). (Stage 2's
+  analytic counterpart is :class:`voxnero.material.lights.IndirectLight`.)
 * :class:`OcclusionNet` — ``s(x, r)`` in [0, 1], supervised by ray casts against the current
   mesh (:mod:`voxnero.shape.occlusion`).
 """
@@ -81,7 +82,7 @@ class EnvLight(nn.Module):
         return envmap.sh9_irradiance(self._sh, n) / math.pi
 
 
-class IndirectLight(nn.Module):
+class IndirectNet(nn.Module):
     """Radiance ``(N, 3)`` reflected toward ``x`` by the object along ``r``, from features.
 
     Args:

@@ -126,7 +126,9 @@ def irradiance_sh(image: Tensor) -> Tensor:
 
 
 class IndirectLight:
-    """Outgoing radiance of secondary hits from the current material and env map (see module).
+    """Outgoing radiance of secondary hits from the current material and env map (see module):
+    analytic, no parameters of its own (stage 1's learned counterpart is
+    :class:`voxnero.fields.lights.IndirectNet`).
 
     Built once per training step from the current env image (keeps gradients to it).
     """

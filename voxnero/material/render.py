@@ -6,7 +6,7 @@ For a surface point x with shading normal n, seen from the unit direction v::
 
 is estimated with three sampling strategies of the shading core — cosine-weighted
 (``sample_cosine``), GGX visible normals (``sample_ggx_vndf``) and the env map's own importance
-sampling (``EnvMap.sample``, when the shading core provides it) — combined by multiple
+sampling (``voxnero.render.envmap.EnvMap.sample``) — combined by multiple
 importance sampling with the power heuristic (multi-sample MIS, Veach 1997)::
 
     F = Σ_k (1 / n_k) Σ_j w_k(l_kj) f L_i cos / p_k(l_kj),
@@ -30,6 +30,7 @@ from torch import Tensor
 from voxnero.material.lights import IndirectLight
 from voxnero.material.surface import Geometry
 from voxnero.render.brdf import brdf_eval, roughness_to_alpha
+from voxnero.render.envmap import EnvMap
 from voxnero.render.sampling import pdf_cosine, pdf_ggx_vndf, sample_cosine, sample_ggx_vndf
 from voxnero.render.splitsum import hammersley
 
@@ -47,20 +48,16 @@ class Strategies:
         return self.cos + self.ggx + self.env
 
 
-def env_sampler(image: Tensor):
-    """The shading core's env-map importance sampler for a (detached) map, or None if absent.
+def env_sampler(image: Tensor) -> EnvMap:
+    """The shading core's env-map importance sampler for a (detached) map.
 
     Args:
         image: (H, W, 3) linear map.
 
     Returns:
-        An object with ``sample(u (N, 2)) -> (dirs (N, 3), pdf (N,))`` and ``pdf(d) -> (N,)``,
-        or None when ``voxnero.render.envmap.EnvMap`` does not exist (yet).
+        An :class:`voxnero.render.envmap.EnvMap`: ``sample(u (N, 2)) -> (dirs (N, 3), pdf (N,))``
+        and ``pdf(d) -> (N,)``.
     """
-    try:
-        from voxnero.render.envmap import EnvMap
-    except ImportError:
-        return None
     return EnvMap(image.detach())
 
 

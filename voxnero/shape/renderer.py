@@ -23,7 +23,7 @@ from torch import nn
 
 from voxnero.fields.grid import DenseGrid, SDFGrid
 from voxnero.fields.heads import MaterialHead
-from voxnero.fields.lights import EnvLight, IndirectLight, OcclusionNet
+from voxnero.fields.lights import EnvLight, IndirectNet, OcclusionNet
 from voxnero.render.brdf import safe_normalize
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.neus import alpha_from_samples, alpha_from_sdf_sequence, composite_weights
@@ -62,7 +62,7 @@ class ShapeModel(nn.Module):
         self.material = MaterialHead(g.feat_dim, lc.hidden, metallic=sw.metallic,
                                      init_roughness=lc.init_roughness)
         self.env = EnvLight(lc.env_height, lc.env_init, lc.max_log_radiance)
-        self.indirect = IndirectLight(g.feat_dim, lc.hidden) if sw.indirect else None
+        self.indirect = IndirectNet(g.feat_dim, lc.hidden) if sw.indirect else None
         self.occlusion = OcclusionNet(g.feat_dim, lc.hidden) if sw.occlusion else None
 
     def param_groups(self, cfg: ShapeConfig) -> list[dict]:

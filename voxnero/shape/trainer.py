@@ -47,7 +47,7 @@ from voxnero.cameras.rays import image_rays, pixel_rays, random_pixels
 from voxnero.config import to_dict
 from voxnero.errors import RunFolderError
 from voxnero.fields.grid import gaussian_blur3d, resample
-from voxnero.fields.lights import IndirectLight, OcclusionNet
+from voxnero.fields.lights import IndirectNet, OcclusionNet
 from voxnero.safety import fingerprint
 from voxnero.safety.guard import NonFiniteGuard, check_finite, nonfinite
 from voxnero.safety.stop import GracefulStop
@@ -615,7 +615,7 @@ class ShapeTrainer:
             m.occlusion = OcclusionNet(cfg.grid.feat_dim, cfg.light.hidden).to(self.device)
             new += list(m.occlusion.parameters())
         if indirect and m.indirect is None:
-            m.indirect = IndirectLight(cfg.grid.feat_dim, cfg.light.hidden).to(self.device)
+            m.indirect = IndirectNet(cfg.grid.feat_dim, cfg.light.hidden).to(self.device)
             new += list(m.indirect.parameters())
         self.sw.occlusion, self.sw.indirect = True, m.indirect is not None
         if add_to_optimizer and new:
