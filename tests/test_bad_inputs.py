@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from config_settings import is_list, numeric_fields, out_of_range
-from fixtures.scenes import edit_json, make_blender, make_colmap, make_nero
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from tests.fixtures.config_settings import is_list, numeric_fields, out_of_range
+from tests.fixtures.scenes import edit_json, make_blender, make_colmap, make_nero
 from voxnero import cli
 from voxnero.io.exr import write_exr
 
@@ -43,7 +43,7 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     """Good inputs shared by the cases: a Blender scene, a mesh file, a relight asset and an
     env map, and a batch manifest path that does not exist (so a batch that accepted its
     settings stops at once)."""
-    from relight_assets import textured_sphere, write_assets
+    from tests.relight.relight_assets import textured_sphere, write_assets
 
     root = tmp_path_factory.mktemp("good")
     make_blender(root / "scene", n={"train": 3, "test": 1})
@@ -456,7 +456,8 @@ def _remove_at_step(module, name: str, out: Path, at: int, monkeypatch) -> None:
 def _sphere_mesh(path: Path) -> Path:
     """The fixture scenes' sphere as a mesh file in their input frame."""
     import open3d as o3d
-    from fixtures.scenes import SPHERE_C, SPHERE_R
+
+    from tests.fixtures.scenes import SPHERE_C, SPHERE_R
 
     mesh = o3d.geometry.TriangleMesh.create_sphere(SPHERE_R, 12).translate(SPHERE_C)
     o3d.io.write_triangle_mesh(str(path), mesh)

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fixtures.scenes import edit_json, make_blender, make_colmap, make_nero
 from PIL import Image
 
+from tests.fixtures.scenes import edit_json, make_blender, make_colmap, make_nero
 from voxnero import cli
 from voxnero.io.exr import write_exr
 

@@ -11,10 +11,16 @@ from typing import ClassVar
 
 import pytest
 import yaml
-from config_settings import is_list, numeric_fields, out_of_range, resolved_presets, sections
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tests.fixtures.config_settings import (
+    is_list,
+    numeric_fields,
+    out_of_range,
+    resolved_presets,
+    sections,
+)
 from voxnero.config import (
     Range,
     available_presets,

@@ -1,17 +1,12 @@
-"""Make ``tests/fixtures`` importable (``from fixtures.scenes import ...``) and locate the dev
-scenes."""
+"""Locate the dev scenes (the loaders' fixtures are in ``tests.fixtures.scenes``)."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 
 TESTS = Path(__file__).resolve().parents[1]
-if str(TESTS) not in sys.path:
-    sys.path.insert(0, str(TESTS))
-
 REPO = TESTS.parent
 DEV_DATA = REPO.parent / "shared" / "data"
 

@@ -6,8 +6,8 @@ import json
 
 import numpy as np
 import pytest
-from fixtures.scenes import check_rays_hit_sphere, make_blender
 
+from tests.fixtures.scenes import check_rays_hit_sphere, make_blender
 from voxnero.data.blender import load_blender
 from voxnero.errors import DataError
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from fixtures.scenes import SPHERE_C, check_rays_hit_sphere, make_colmap
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
+from tests.fixtures.scenes import SPHERE_C, check_rays_hit_sphere, make_colmap
 from voxnero.data.colmap import (
     ColmapCamera,
     ColmapImage,

@@ -9,8 +9,8 @@ import numpy as np
 import open3d as o3d
 import pytest
 import torch
-from fixtures.scenes import make_blender, make_colmap, make_nero
 
+from tests.fixtures.scenes import make_blender, make_colmap, make_nero
 from voxnero.cameras.rays import image_rays, pixel_centers, pixel_rays
 from voxnero.data.detect import available_splits, detect_format, load_scene
 from voxnero.errors import DataError

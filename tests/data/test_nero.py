@@ -8,8 +8,8 @@ import pickle
 
 import numpy as np
 import pytest
-from fixtures.scenes import check_rays_hit_sphere, make_nero
 
+from tests.fixtures.scenes import check_rays_hit_sphere, make_nero
 from voxnero.cameras.rays import image_rays
 from voxnero.data.nero import load_nero
 from voxnero.errors import DataError
@@ -36,7 +36,7 @@ def test_depth_is_z_depth_in_unit_frame(tmp_path):
     np.testing.assert_allclose(d[hit], b.depth["train"][hit] / sc.norm.scale,
                                atol=0.5 * 15 / 65535 / sc.norm.scale + 1e-6)
     # back-projected points lie on the unit-frame sphere (z-depth along the camera's +z)
-    from fixtures.scenes import SPHERE_C, SPHERE_R
+    from tests.fixtures.scenes import SPHERE_C, SPHERE_R
 
     o, dirs = image_rays(sp.cameras, 0)
     cos = (dirs * sp.cameras.forward[0]).sum(-1)

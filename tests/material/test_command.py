@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
-from stage2_scene import ring_cameras, smooth_env, sphere_geometry
 
+from tests.material.stage2_scene import ring_cameras, smooth_env, sphere_geometry
 from voxnero.cli import main
 from voxnero.commands.material import locate
 from voxnero.commands.reconstruct import split_overrides

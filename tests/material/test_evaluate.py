@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 import torch
-from stage2_scene import ring_cameras, sphere_geometry
 
+from tests.material.stage2_scene import ring_cameras, sphere_geometry
 from voxnero.material.evaluate import render_view
 from voxnero.material.field import VertexMaterial
 from voxnero.material.render import Strategies

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import torch
-from stage2_scene import sphere_geometry
 
+from tests.material.stage2_scene import sphere_geometry
 from voxnero.material.field import GridMaterial, VertexMaterial, activate, vertex_materials
 
 

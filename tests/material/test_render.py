@@ -7,8 +7,8 @@ import math
 import open3d as o3d
 import pytest
 import torch
-from stage2_scene import smooth_env, sphere_geometry
 
+from tests.material.stage2_scene import smooth_env, sphere_geometry
 from voxnero.material.field import VertexMaterial
 from voxnero.material.render import Strategies, env_sampler, sample_directions, shade
 from voxnero.material.surface import Geometry

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 import torch
-from stage2_scene import ring_cameras, sphere_geometry
 
+from tests.material.stage2_scene import ring_cameras, sphere_geometry
 from voxnero.cameras.rays import image_rays
 from voxnero.material.surface import RAY_EPS, Geometry, build_cache
 

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import torch
-from stage2_scene import ring_cameras, smooth_env, sphere_geometry
 
+from tests.material.stage2_scene import ring_cameras, smooth_env, sphere_geometry
 from voxnero.material.config import MaterialConfig
 from voxnero.material.evaluate import render_view
 from voxnero.material.field import GridMaterial, VertexMaterial

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
-from stage2_scene import ring_cameras, smooth_env
 
+from tests.material.stage2_scene import ring_cameras, smooth_env
 from voxnero.cli import main
 from voxnero.io.color import linear_to_srgb
 

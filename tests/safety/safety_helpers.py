@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fixtures.scenes import make_blender
 
+from tests.fixtures.scenes import make_blender
 from voxnero import cli
 
 SHAPE_FAST = ["--preset", "tiny", "--no-progress", "--no-eval", "iters=6", "mesh_res=16",

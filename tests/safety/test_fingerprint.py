@@ -6,8 +6,8 @@ from __future__ import annotations
 import shutil
 
 import pytest
-from safety_helpers import blender_scene, run_cli, shape_argv, snapshot
 
+from tests.safety.safety_helpers import blender_scene, run_cli, shape_argv, snapshot
 from voxnero.config import from_dict, to_dict
 from voxnero.errors import RunFolderError
 from voxnero.safety import fingerprint

@@ -13,8 +13,8 @@ import textwrap
 
 import numpy as np
 import pytest
-from safety_helpers import blender_scene, run_cli, shape_argv, snapshot
 
+from tests.safety.safety_helpers import blender_scene, run_cli, shape_argv, snapshot
 from voxnero.errors import RunFolderError
 from voxnero.safety import folder as folder_mod
 from voxnero.safety.folder import LOCK, RunFolder
@@ -94,7 +94,8 @@ def good_folder(tmp_path):
 
 def _sphere_mesh(path):
     import open3d as o3d
-    from fixtures.scenes import SPHERE_C, SPHERE_R
+
+    from tests.fixtures.scenes import SPHERE_C, SPHERE_R
 
     mesh = o3d.geometry.TriangleMesh.create_sphere(SPHERE_R, 12).translate(SPHERE_C)
     o3d.io.write_triangle_mesh(str(path), mesh)
@@ -105,9 +106,8 @@ def test_failing_runs_leave_a_good_folder_byte_identical(tmp_path, capsys, monke
                                                          good_folder):
     """material / eval / relight failing after they started used to overwrite config.yaml (and
     relight the views it had rendered)."""
-    from fixtures.scenes import edit_json
-    from relight_assets import textured_sphere, write_assets
-
+    from tests.fixtures.scenes import edit_json
+    from tests.relight.relight_assets import textured_sphere, write_assets
     from voxnero.io.exr import write_exr
     from voxnero.relight.render import Relighter
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 import torch
-from safety_helpers import blender_scene, run_cli, shape_argv
 
+from tests.safety.safety_helpers import blender_scene, run_cli, shape_argv
 from voxnero.errors import TrainingError
 from voxnero.safety.guard import MAX_NONFINITE_STEPS, NonFiniteGuard
 from voxnero.shape import losses
@@ -52,8 +52,7 @@ def test_nan_state_is_never_checkpointed(tmp_path, capsys, monkeypatch):
 
 def test_material_stops_when_the_loss_stays_nan(tmp_path):
     """Stage 2 had no guard at all: NaN went through backward into every parameter."""
-    from stage2_scene import ring_cameras, sphere_geometry
-
+    from tests.material.stage2_scene import ring_cameras, sphere_geometry
     from voxnero.material.config import MaterialConfig
     from voxnero.material.surface import build_cache
     from voxnero.material.trainer import MaterialTrainer

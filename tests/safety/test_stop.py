@@ -7,8 +7,8 @@ import os
 import signal
 
 import numpy as np
-from safety_helpers import blender_scene, run_cli, sdf_of, shape_argv
 
+from tests.safety.safety_helpers import blender_scene, run_cli, sdf_of, shape_argv
 from voxnero.safety.stop import GracefulStop
 from voxnero.shape import trainer as trainer_mod
 

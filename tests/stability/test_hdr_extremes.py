@@ -15,8 +15,13 @@ import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from stability_helpers import S_SCHEDULED_MAX, assert_finite_grads, tiny_model, tiny_shape_config
 
+from tests.stability.stability_helpers import (
+    S_SCHEDULED_MAX,
+    assert_finite_grads,
+    tiny_model,
+    tiny_shape_config,
+)
 from voxnero.fields.lights import EnvLight
 from voxnero.material.render import Strategies, env_sampler
 from voxnero.material.render import shade as shade_mc
@@ -27,7 +32,7 @@ from voxnero.shape.renderer import render_rays
 @pytest.fixture(scope="module")
 def surface():
     """A UV sphere (r 0.5) and 48 surface points with normals and view directions."""
-    from stage2_scene import smooth_env, sphere_geometry
+    from tests.material.stage2_scene import smooth_env, sphere_geometry
 
     geom = sphere_geometry(0.5, 40)
     g = torch.Generator().manual_seed(0)

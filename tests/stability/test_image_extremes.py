@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import pytest
 import torch
-from scenes import make_blender
-from stability_helpers import assert_finite_grads, tiny_model, tiny_shape_config
 
+from tests.fixtures.scenes import make_blender
+from tests.stability.stability_helpers import assert_finite_grads, tiny_model, tiny_shape_config
 from voxnero.config import from_dict
 from voxnero.data.detect import load_scene
 from voxnero.shape import losses

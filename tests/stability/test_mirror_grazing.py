@@ -16,7 +16,8 @@ import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from stability_helpers import (
+
+from tests.stability.stability_helpers import (
     S_SCHEDULED_MAX,
     assert_finite_grads,
     set_env,
@@ -24,7 +25,6 @@ from stability_helpers import (
     tiny_model,
     tiny_shape_config,
 )
-
 from voxnero.fields.lights import EnvLight
 from voxnero.material.render import Strategies, env_sampler
 from voxnero.material.render import shade as shade_mc
@@ -171,7 +171,7 @@ def test_stage1_renderer_tangent_rays(eps, radius_of, normals):
 
 def _mc_points(k: int = 40, radius: float = 0.5, res: int = 96):
     """Stage-2 geometry (UV sphere) and the hits of rays straight down (−Z) on a k×k grid."""
-    from stage2_scene import sphere_geometry
+    from tests.material.stage2_scene import sphere_geometry
 
     geom = sphere_geometry(radius, res)
     o, d, _, _ = _mirror_sphere_rays(k, radius)

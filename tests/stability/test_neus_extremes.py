@@ -15,8 +15,13 @@ import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from stability_helpers import S_SCHEDULED_MAX, assert_finite_grads, tiny_model, tiny_shape_config
 
+from tests.stability.stability_helpers import (
+    S_SCHEDULED_MAX,
+    assert_finite_grads,
+    tiny_model,
+    tiny_shape_config,
+)
 from voxnero.shape.neus import (
     alpha_from_interval,
     alpha_from_samples,
@@ -162,8 +167,7 @@ def test_trainer_steps_at_extreme_sharpness(s, tmp_path):
     """``ShapeTrainer.train_step`` with the schedule pinned at s (s_start = s_end): no step is
     skipped, gradients and parameters stay finite (a NaN gradient would reach Adam and fill the
     grid with NaN — the trainer only guards against a non-finite *loss*)."""
-    from scenes import make_blender
-
+    from tests.fixtures.scenes import make_blender
     from voxnero.config import from_dict
     from voxnero.data.detect import load_scene
     from voxnero.shape.config import ShapeConfig

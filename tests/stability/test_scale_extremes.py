@@ -17,8 +17,8 @@ import shutil
 import numpy as np
 import pytest
 import torch
-from scenes import make_blender
 
+from tests.fixtures.scenes import make_blender
 from voxnero.config import from_dict
 from voxnero.data.detect import load_scene
 from voxnero.shape.config import ShapeConfig

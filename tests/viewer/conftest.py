@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from relight_assets import textured_sphere, write_assets
+
+from tests.relight.relight_assets import textured_sphere, write_assets
 
 
 @pytest.fixture(scope="session")

@@ -7,8 +7,8 @@ from __future__ import annotations
 import shutil
 
 import open3d as o3d
-from relight_assets import textured_sphere
 
+from tests.relight.relight_assets import textured_sphere
 from voxnero.cli import build_parser
 
 

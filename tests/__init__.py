@@ -1,0 +1,1 @@
+"""Tests of VoxNeRO (a package: helpers are imported as ``tests.<folder>.<module>``)."""
