@@ -115,3 +115,19 @@ def test_forward_is_unit_z_axis():
     torch.testing.assert_close(cams.forward, cams.c2w[:, :3, 2], atol=1e-6, rtol=0)
     assert torch.allclose(cams.forward.norm(dim=-1), torch.ones(4))
     assert math.isclose(float(torch.linalg.det(cams.c2w[0, :3, :3])), 1.0, abs_tol=1e-5)
+
+
+def test_the_tests_look_at_agrees_with_the_package():
+    """The tests' own look-at (tests/fixtures/cameras.py, written from the conventions) and the
+    package's look_at_opencv / OpenGL converter give the same poses, the pole included."""
+    from tests.fixtures.cameras import look_at, world_to_camera
+    from voxnero.cameras.cameras import look_at_opencv
+
+    rng = np.random.default_rng(0)
+    eyes = np.vstack([rng.normal(size=(16, 3)) * 3, [[0.0, 0.0, 4.0]]])
+    target = np.array([0.1, -0.2, 0.3])
+    ours = np.stack([look_at(e, target) for e in eyes])
+    np.testing.assert_allclose(ours, look_at_opencv(eyes, target), atol=1e-12)
+    gl = np.stack([look_at(e, target, convention="opengl") for e in eyes])
+    np.testing.assert_allclose(opengl_to_opencv(gl), ours, atol=1e-12)
+    np.testing.assert_allclose(w2c_to_c2w(world_to_camera(ours[0]))[:3], ours[0][:3], atol=1e-12)

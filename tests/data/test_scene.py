@@ -10,6 +10,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tests.fixtures.cameras import look_at
 from voxnero.cameras.cameras import Cameras
 from voxnero.data.scene import (
     Normalisation,
@@ -55,21 +56,11 @@ def test_c2w_to_unit_moves_centre_only():
     np.testing.assert_array_equal(out[:3, :3], np.eye(3))
 
 
-def look_at_cv(eye, target):
-    z = np.asarray(target, float) - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, np.cross(z, x), z, eye
-    return m
-
-
 def test_closest_point_to_axes_recovers_target():
     target = np.array([0.4, -1.0, 2.0])
     rng = np.random.default_rng(0)
     eyes = target + rng.normal(size=(7, 3)) * 3
-    c2w = np.stack([look_at_cv(e, target) for e in eyes])
+    c2w = np.stack([look_at(e, target) for e in eyes])
     np.testing.assert_allclose(closest_point_to_axes(eyes, c2w[:, :3, 2]), target, atol=1e-9)
     # parallel axes: falls back to the mean of the origins
     o = np.array([[0, 0, 0], [1, 0, 0.0]])
@@ -93,7 +84,7 @@ def test_default_radius_is_the_largest_sphere_every_view_sees():
     for _ in range(6):
         v = rng.normal(size=3)
         eyes.append(target + v / np.linalg.norm(v) * rng.uniform(3, 6))
-    c2w = np.stack([look_at_cv(e, target) for e in eyes])
+    c2w = np.stack([look_at(e, target) for e in eyes])
     Ks = np.repeat(K[None], 6, 0)
     center, r = normalisation_from_cameras(c2w, Ks, w, h)
     np.testing.assert_allclose(center, target, atol=1e-9)
@@ -113,7 +104,7 @@ def test_default_radius_is_the_largest_sphere_every_view_sees():
 
 
 def test_choose_normalisation_rules():
-    c2w = np.stack([look_at_cv(np.array(e, float), [0, 0, 0]) for e in
+    c2w = np.stack([look_at(np.array(e, float), [0, 0, 0]) for e in
                     ([4, 0, 0], [0, 4, 0], [0.5, 0, 4], [-4, 0, 1])])
     K = np.repeat(np.array([[50.0, 0, 20], [0, 50, 20], [0, 0, 1]])[None], 4, 0)
     n, rec = choose_normalisation(c2w, K, 40, 40)

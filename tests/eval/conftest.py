@@ -14,23 +14,11 @@ import numpy as np
 import open3d as o3d
 import pytest
 
+from tests.fixtures.cameras import look_at
 from voxnero.cameras.cameras import Cameras
 from voxnero.cameras.rays import image_rays
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
-
-
-def look_at_cv(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """OpenCV camera-to-world (x right, y down, z forward) looking from ``eye`` at ``target``."""
-    eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = x, y, z, eye
-    return c2w
 
 
 def ring_cameras(n=6, dist=4.0, size=96, fov_deg=40.0) -> Cameras:
@@ -41,7 +29,7 @@ def ring_cameras(n=6, dist=4.0, size=96, fov_deg=40.0) -> Cameras:
     for i in range(n):
         az, el = 2 * np.pi * i / n, np.radians(-15 + 70 * i / max(n - 1, 1))
         eyes.append(dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]))
-    return Cameras(np.stack([K] * n), np.stack([look_at_cv(e) for e in eyes]), size, size)
+    return Cameras(np.stack([K] * n), np.stack([look_at(e) for e in eyes]), size, size)
 
 
 def sphere_views(cameras: Cameras, center, radius):
@@ -112,7 +100,7 @@ def dev_scene():
 
 @pytest.fixture(scope="session")
 def geo():
-    """Helpers: ``look_at_cv``, ``ring_cameras``, ``sphere_views``, ``icosphere``, ``DATA``."""
-    return SimpleNamespace(look_at_cv=look_at_cv, ring_cameras=ring_cameras,
+    """Helpers: ``ring_cameras``, ``sphere_views``, ``icosphere``, ``DATA``."""
+    return SimpleNamespace(ring_cameras=ring_cameras,
                            sphere_views=sphere_views, icosphere=icosphere, DATA=DATA)
 

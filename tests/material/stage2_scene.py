@@ -8,6 +8,7 @@ import numpy as np
 import open3d as o3d
 import torch
 
+from tests.fixtures.cameras import look_at
 from voxnero.cameras.cameras import Cameras
 from voxnero.material.surface import Geometry
 
@@ -49,12 +50,5 @@ def ring_cameras(n: int, size: int = 48, dist: float = 2.5, fov_deg: float = 40.
         z = min(z, 0.95)
         phi = i * math.pi * (3 - math.sqrt(5))
         r = math.sqrt(1 - z * z)
-        eye = dist * np.array([r * math.cos(phi), r * math.sin(phi), z])
-        fwd = -eye / np.linalg.norm(eye)
-        right = np.cross(fwd, [0, 0, 1.0])
-        right /= np.linalg.norm(right)
-        down = np.cross(fwd, right)
-        M = np.eye(4)
-        M[:3, 0], M[:3, 1], M[:3, 2], M[:3, 3] = right, down, fwd, eye
-        c2w.append(M)
+        c2w.append(look_at(dist * np.array([r * math.cos(phi), r * math.sin(phi), z])))
     return Cameras(np.repeat(K[None], n, 0), np.stack(c2w), size, size)

@@ -18,6 +18,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tests.fixtures.cameras import look_at
 from voxnero.shape.occlusion import (
     OcclusionTargets,
     mean_edge_length,
@@ -151,9 +152,7 @@ def _camera_rays(n_cams: int = 24, size: int = 48, dist: float = 3.0, fov_deg: f
     uu, vv = np.meshgrid(u, u)
     o, d = [], []
     for e in eyes:
-        fwd = _unit(-e)
-        right = _unit(np.cross(fwd, [0.0, 0.0, 1.0]) + [1e-6, 0, 0])
-        down = np.cross(fwd, right)
+        right, down, fwd = look_at(e)[:3, :3].T
         dirs = _unit(fwd + uu.reshape(-1, 1) * right + vv.reshape(-1, 1) * down)
         o.append(np.broadcast_to(e, dirs.shape))
         d.append(dirs)
