@@ -6,6 +6,8 @@
 * :mod:`voxnero.batch.tasks` — the per-scene Ray task (skip if done, run the child, result);
 * :mod:`voxnero.batch.runner` — the driver (local Ray or ``--address``, progress, retries);
 * :mod:`voxnero.batch.results` — ``results.csv`` / ``results.md``.
+* :mod:`voxnero.batch.process` — a command as a measured child (exit code, wall time, peak RSS;
+  also ``tools/tradeoff``'s runner).
 
 Ray is imported only by :mod:`voxnero.batch.runner` (and lazily by :mod:`voxnero.batch.tasks`).
 """

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,14 +46,19 @@ def all_succeeded(rows: list[dict[str, Any]]) -> bool:
     return all(r.get("status") in ("ok", "skipped") for r in rows)
 
 
-def write_csv(path: str | Path, rows: list[dict[str, Any]]) -> Path:
-    """Write ``rows`` with :data:`COLUMNS` (extra keys are left out), atomically."""
+def write_csv(path: str | Path, rows: Iterable[dict[str, Any]],
+              columns: Sequence[str] = COLUMNS, cell: Callable[[Any], str] = _cell) -> Path:
+    """Write ``rows`` with ``columns`` (extra keys are left out), atomically.
+
+    Each value (None where a row lacks the column) is written as ``cell(value)``; the default
+    leaves None and NaN empty and writes floats with 6 significant digits.
+    """
     path = Path(path)
     buf = io.StringIO(newline="")
     w = csv.writer(buf)
-    w.writerow(COLUMNS)
+    w.writerow(columns)
     for r in rows:
-        w.writerow([_cell(r.get(c)) for c in COLUMNS])
+        w.writerow([cell(r.get(c)) for c in columns])
     return atomic_write_text(path, buf.getvalue())
 
 

@@ -26,6 +26,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from voxnero.batch.process import wait_measured
+
 RESULT = "result.json"
 LOG = "batch.log"
 LOCK = ".batch.lock"
@@ -123,22 +125,31 @@ def _json(path: Path) -> dict[str, Any]:
         return {}
 
 
+def scores(metrics: dict[str, Any]) -> dict[str, Any]:
+    """Chamfer (``chamfer.cd``), mean normal error in degrees (``normals.mean_deg``) and
+    novel-view PSNR in dB (``novel_view.psnr``) of a ``metrics.json``; None where absent."""
+
+    def part(section: str, key: str) -> Any:
+        d = metrics.get(section)
+        return d.get(key) if isinstance(d, dict) else None
+
+    return {"chamfer": part("chamfer", "cd"), "normal_deg": part("normals", "mean_deg"),
+            "psnr": part("novel_view", "psnr")}
+
+
 def collect_metrics(out: str | Path) -> dict[str, Any]:
     """Chamfer / normal error (``eval/metrics.json``), PSNR (``material/metrics.json``), paths.
 
     Missing files give None values (no ground truth, or stage 1 only).
     """
     out = Path(out)
-    ev = _json(out / "eval" / "metrics.json")
-    mat = _json(out / "material" / "metrics.json")
-    ch = ev.get("chamfer") if isinstance(ev.get("chamfer"), dict) else {}
-    nrm = ev.get("normals") if isinstance(ev.get("normals"), dict) else {}
-    nv = mat.get("novel_view") if isinstance(mat.get("novel_view"), dict) else {}
+    ev = scores(_json(out / "eval" / "metrics.json"))
+    mat = scores(_json(out / "material" / "metrics.json"))
 
     def path_or_none(p: Path) -> str | None:
         return str(p) if p.exists() else None
 
-    return {"chamfer": ch.get("cd"), "normal_deg": nrm.get("mean_deg"), "psnr": nv.get("psnr"),
+    return {"chamfer": ev["chamfer"], "normal_deg": ev["normal_deg"], "psnr": mat["psnr"],
             "mesh": path_or_none(out / "shape" / "mesh.ply"),
             "model": path_or_none(out / "material" / "model.glb"),
             "metrics": path_or_none(out / "eval" / "metrics.json")}
@@ -228,11 +239,8 @@ def run_scene(job: SceneJob) -> dict[str, Any]:
             proc = subprocess.Popen([sys.executable, "-m", "voxnero.batch.child", str(spec)],
                                     stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                     env=_child_env(job), pass_fds=(lock.fd,), cwd=str(out))
-            _, wstatus, usage = os.wait4(proc.pid, 0)
-            rc = os.waitstatus_to_exitcode(wstatus)
-            proc.returncode = rc
+            rc, peak_mb = wait_measured(proc)
         dt = time.perf_counter() - t0
-        peak_mb = usage.ru_maxrss / 1024.0  # Linux: KiB
         done = _json(status).get("stages", [])
         if rc < 0 or rc == 130:
             how = f"signal {-rc}" if rc < 0 else "an interrupt"
