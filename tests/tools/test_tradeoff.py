@@ -1,9 +1,8 @@
-"""Tests of ``tools/tradeoff.py``: writers, resume, ``--check``, README markers, one real run."""
+"""Tests of ``tools/tradeoff/``: writers, resume, ``--check``, README markers, one real run."""
 
 from __future__ import annotations
 
 import csv
-import importlib.util
 import math
 import statistics
 import struct
@@ -17,19 +16,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import tools.tradeoff as T
+
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _load():
-    spec = importlib.util.spec_from_file_location("voxnero_tool_tradeoff",
-                                                  REPO / "tools" / "tradeoff.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look the module up by name
-    spec.loader.exec_module(mod)
-    return mod
-
-
-T = _load()
 
 TINY = ("preview shape.iters=20 shape.grid.res=[16,24] shape.mesh_res=48 "
         "shape.sampling.rays=512")
