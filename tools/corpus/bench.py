@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Measure VoxNeRO's presets on the corpus: Chamfer in pixels, normal error, genus, relight PSNR.
 
-The runs themselves are ``tools/tradeoff.py``'s (one child process per training command, one
+The runs themselves are ``tools/tradeoff/``'s (one child process per training command, one
 torch thread, ``--stage both``: ``voxnero shape`` then ``voxnero material``, both timed, then
 ``voxnero eval`` on the stage-2 output); this script adds what the corpus needs on top of its
 CSV and run folders:
@@ -71,7 +71,7 @@ def _json(path: Path) -> dict:
 
 
 def run_dirs(out: Path, scene: str, preset: str) -> tuple[Path, Path]:
-    """The stage-1 and stage-2 folders ``tools/tradeoff.py`` made for (scene, preset)."""
+    """The stage-1 and stage-2 folders ``tools/tradeoff/`` made for (scene, preset)."""
     p = tradeoff.parse_point(preset)
     cfg = " ".join((p.preset, *p.for_stage("shape")))
     base = out / "runs" / scene
@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True, help="sweep and report folder")
     ap.add_argument("--scenes", nargs="*", help="scene names (default: every scene built)")
     ap.add_argument("--points", nargs="+", default=["preview", "standard"],
-                    help="presets (and overrides) as tools/tradeoff.py takes them")
+                    help="presets (and overrides) as python -m tools.tradeoff takes them")
     ap.add_argument("--stage", choices=("shape", "both"), default="both",
                     help="shape: stage 1 only (no relight PSNR); both: stage 1 and 2")
     ap.add_argument("--jobs", type=int, default=2)
