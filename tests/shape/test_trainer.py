@@ -167,58 +167,14 @@ def test_sdf_lr_scales_with_voxel_at_upsampling(scene, tmp_path, per_voxel):
 
 
 @pytest.mark.parametrize("first,other", [(0.7, 0.15), (0.15, 0.7)])
-def test_first_look_keeps_the_better_start(scene, tmp_path, first, other):
-    """Two starts, one a sphere far inside the object: the first look keeps the one that fits the
-    photos (whichever is listed first), records why, and the run still ends at ``iters``."""
-    import json
-
-    cfg = _cfg(60)
-    cfg.grid.init_radius, cfg.grid.init_candidates, cfg.grid.init_trial = first, [other], 0.5
-    cfg.light.occlusion = "off"
-    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
-    tr.run()
-    assert tr.step == 60
-    dec = json.loads((tmp_path / "decisions.json").read_text())["init_radius"]
-    assert dec["value"] == 0.7 and dec["step"] == 30, dec
-    ev = dec["evidence"]
-    assert ev["radii"] == [first, other] and ev["trial_steps"] == 30
-    p07, p015 = (ev["psnr"][0], ev["psnr"][1]) if first == 0.7 else (ev["psnr"][1], ev["psnr"][0])
-    assert p07 > p015 + 1.0, ev  # dB: the small sphere leaves most of the object unexplained
-    trial = [json.loads(l) for l in (tmp_path / "log.jsonl").read_text().splitlines()
-             if '"trial"' in l]
-    assert {r["trial"] for r in trial} == {f"r{first:g}", f"r{other:g}"}
-
-
-def test_interrupt_during_first_look_restarts_it(scene, tmp_path):
-    cfg = _cfg(20)
-    cfg.grid.init_candidates, cfg.grid.init_trial, cfg.grid.init_margin = [0.5], 0.3, 1.0
-    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
-    orig, calls = tr.train_step, {"n": 0}
-
-    def flaky():
-        calls["n"] += 1
-        if calls["n"] == 8:  # second start of the first look (6 steps each)
-            raise KeyboardInterrupt
-        return orig()
-
-    tr.train_step = flaky
-    with pytest.raises(KeyboardInterrupt):
-        tr.run()
-    assert not (tmp_path / CKPT).exists()  # nothing half-chosen is saved
-    tr2 = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
-    tr2.run()
-    assert tr2.step == 20 and (tmp_path / "mesh.ply").is_file()
-
-
-@pytest.mark.parametrize("first,other", [(0.7, 0.15), (0.15, 0.7)])
 def test_race_keeps_the_start_with_the_better_final_fit(scene, tmp_path, first, other):
-    """``init_trial`` = 1: each start is a complete run in ``starts/``; the one whose final
+    """Each start is a complete run in ``starts/``; the one whose final
     model fits the photos better is kept (whichever is listed first), its mesh is the run's,
     the other start's log lines carry a ``trial`` field, and times and steps are the totals."""
     import json
 
     cfg = _cfg(40)
-    cfg.grid.init_radius, cfg.grid.init_candidates, cfg.grid.init_trial = first, [other], 1.0
+    cfg.grid.init_radius, cfg.grid.init_candidates = first, [other]
     tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
     path = tr.run()
     dec = json.loads((tmp_path / "decisions.json").read_text())["init_radius"]
@@ -245,7 +201,7 @@ def test_race_of_roughness_starts_from_the_kept_radius(scene, tmp_path):
     import json
 
     cfg = _cfg(30)
-    cfg.grid.init_radius, cfg.grid.init_candidates, cfg.grid.init_trial = 0.15, [0.7], 1.0
+    cfg.grid.init_radius, cfg.grid.init_candidates = 0.15, [0.7]
     cfg.light.init_roughness_candidates = [0.1]
     tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
     path = tr.run()
@@ -265,16 +221,12 @@ def test_race_of_roughness_starts_from_the_kept_radius(scene, tmp_path):
     assert json.loads((tmp_path / "shape.json").read_text())["init_roughness"] == kept
 
 
-def test_roughness_candidates_need_complete_runs():
-    """A first look (``init_trial`` < 1) cannot race roughness: a clear error with the fix."""
+def test_roughness_candidates_below_the_head_minimum_are_refused():
+    """A starting roughness the material head cannot output: a clear error with the fix."""
     from voxnero.errors import ConfigError
 
     cfg = _cfg(30)
-    cfg.grid.init_candidates, cfg.grid.init_trial = [0.5], 0.3
-    cfg.light.init_roughness_candidates = [0.1]
-    with pytest.raises(ConfigError, match="init_trial=1"):
-        cfg.validate()
-    cfg.grid.init_trial = 1.0
+    cfg.grid.init_candidates = [0.5]
     cfg.light.init_roughness_candidates = [0.01]
     with pytest.raises(ConfigError, match="0.02"):
         cfg.validate()
@@ -284,7 +236,7 @@ def test_race_interrupted_in_its_second_start_resumes_there(scene, tmp_path):
     """A kill during the second start keeps the first start's finished run: re-running trains
     only what is left of the second."""
     cfg = _cfg(20)
-    cfg.grid.init_candidates, cfg.grid.init_trial = [0.5], 1.0
+    cfg.grid.init_candidates = [0.5]
     cfg.ckpt_every_s = 0.0  # a checkpoint every step
     steps = {"n": 0}
     orig = ShapeTrainer.train_step

@@ -7,7 +7,8 @@ A fingerprint is ``{"sources": {name: digest}, "settings": {dotted key: value}}`
   format), :func:`file_digest` of a mesh;
 * settings: :func:`model_settings`, the resolved config flattened to dotted keys without the
   keys its class lists in ``FREE_ON_RESUME`` (output, logging and checkpoint cadence: they do
-  not change the model).
+  not change the model), plus the removed keys its class lists in ``RETIRED`` at their one
+  remaining value (so that checkpoints from before a removal resume).
 
 :func:`check_resume` compares a checkpoint's fingerprint with the run's and names what differs.
 """
@@ -78,7 +79,9 @@ def model_settings(cfg: Any) -> dict[str, Any]:
     """The settings of a config dataclass that shape the model: flattened dotted keys, without
     the class's ``FREE_ON_RESUME`` keys."""
     free = set(getattr(cfg, "FREE_ON_RESUME", ()))
-    return {k: v for k, v in _flatten(to_dict(cfg)).items() if k not in free}
+    out = {k: v for k, v in _flatten(to_dict(cfg)).items() if k not in free}
+    out.update(getattr(cfg, "RETIRED", {}))  # removed keys: old checkpoints still match
+    return out
 
 
 def make(cfg: Any, **sources: str) -> dict[str, Any]:

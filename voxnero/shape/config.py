@@ -32,7 +32,7 @@ class GridConfig:
     RANGES: ClassVar[dict[str, Range]] = {
         "res": at_least(4, 1024), "upsample_at": Range(0.0, 1.0, lo_open=True, hi_open=True),
         "bound": positive(10.0), "init_radius": positive(1.5), "init_candidates": positive(1.5),
-        "init_margin": Range(-100.0, 100.0), "init_trial": positive(1.0),
+        "init_margin": Range(-100.0, 100.0),
         "fd_step": positive(16.0), "grad_smooth": Range(0.0, 16.0), "feat_res": at_least(1, 512),
         "feat_dim": at_least(1, 256)}
     """Allowed values (:func:`voxnero.config.check_numbers`); the units are voxels, the unit
@@ -53,23 +53,14 @@ class GridConfig:
     the initial sphere looks like background (a mirror sphere of radius 0.45 off the centre kept
     one from 0.7: Chamfer 0.25; from 0.5: 0.006), and it barely grows because its rim reflects
     what lies behind it (sphere_gold, radius 0.8, from 0.5: 0.070; from 0.7: 0.011). So the
-    program tries both and keeps the one that explains the photos best (``init_trial``)."""
+    program tries both: a race of complete runs in ``starts/r<radius>/``, each with its own
+    checkpoints, judged on the final model's PSNR over ``fit_rays`` fixed training pixels
+    (:func:`voxnero.shape.starts.race`); it costs one extra run per candidate. (A shorter first
+    look on early training PSNR was removed: early PSNR favours a start inside a mirror that
+    later loses, docs/STAGE1.md, finding 13.)"""
     init_margin: float = 0.0
-    """dB by which another start's fit must beat ``init_radius``'s to replace it. 0 for the race
-    (``init_trial`` = 1): the final fits it compares are deterministic and starts that end alike
-    fit alike. A short trial needs about 1 dB: early fits of starts that end far apart can be
-    level (sphere_gold: 19.93 dB from both 0.7 and 0.5 after 30 % of the preview)."""
-    init_trial: float = 1.0
-    """Fraction of ``iters`` each initial radius trains for before the fits are compared; its
-    steps count in the run's time.
-    1 (default): a race of complete runs in ``starts/r<radius>/``, each with its own checkpoints,
-    judged on the final model's PSNR over ``fit_rays`` fixed training pixels
-    (:meth:`~voxnero.shape.trainer.ShapeTrainer.race_starts`); costs one extra run per candidate.
-    Below 1: a first look on the same batches, judged on the mean training PSNR over the trial's
-    last third; the best start goes on (an interrupted first look restarts on the next run).
-    Early PSNR favours a start inside a mirror that later loses: on a gold sphere at 64² the
-    0.5 start led by 2.4 dB at 30 % and by 1.0 dB at 50 % of the preview, and ended 1.1 dB
-    behind the 0.7 start, whose Chamfer is 15× better (docs/STAGE1.md, finding 13)."""
+    """dB by which another start's fit must beat ``init_radius``'s to replace it. 0: the final
+    fits the race compares are deterministic and starts that end alike fit alike."""
     normals: Literal["analytic", "fd"] = "analytic"
     fd_step: float = 1.0
     """Central-difference half-step in voxels (normals: fd)."""
@@ -184,7 +175,7 @@ class LightConfig:
     (sphere_gold preview 0.0116 → 0.070): docs/STAGE1.md, finding 14."""
     init_roughness_candidates: list[float] = field(default_factory=list)
     """Other starting roughnesses raced from the kept initial radius (complete runs, after the
-    race of radii; ``grid.init_trial`` must be 1); the start that fits the photos best is kept.
+    race of radii); the start that fits the photos best is kept.
     [] (default) = ``init_roughness`` only. One start rarely serves every object: a rough start
     can leave a mirror rough for good, a near-specular one leaves a lone mirror lumpy
     (docs/STAGE1.md, finding 15)."""
@@ -259,6 +250,10 @@ class ShapeConfig:
     """Keys a resume may change (outputs, logging, cadence, judging a finished race); any other
     key shapes the model, and a checkpoint trained with another value is refused
     (:mod:`voxnero.safety.fingerprint`)."""
+    RETIRED: ClassVar[dict[str, object]] = {"grid.init_trial": 1.0}
+    """Settings removed from the config, with the value every run had that is still possible:
+    kept in the fingerprint so that checkpoints written before the removal resume
+    (``grid.init_trial`` < 1 was the removed first look; 1 is the race)."""
 
     iters: int = 1500
     seed: int = 0
@@ -292,17 +287,7 @@ class ShapeConfig:
                               fix="give one fraction of iters per resolution change")
         if self.sampling.coarse_keep > self.sampling.coarse:
             raise ConfigError("shape.sampling.coarse_keep must be <= shape.sampling.coarse")
-        if g.init_candidates and self.light.occlusion == "auto" and \
-                self.light.decide_at <= g.init_trial < 1.0:
-            raise ConfigError(f"shape.grid.init_trial={g.init_trial} must end before "
-                              f"shape.light.decide_at={self.light.decide_at}",
-                              fix="shorten the first look or decide the occlusion later")
         rc = self.light.init_roughness_candidates
-        if rc and g.init_trial < 1.0:
-            raise ConfigError(f"shape.light.init_roughness_candidates={rc} needs complete runs "
-                              f"(shape.grid.init_trial=1, not {g.init_trial})",
-                              fix="set shape.grid.init_trial=1 or "
-                                  "'shape.light.init_roughness_candidates=[]'")
         if any(not 0.02 < r < 1.0 for r in [self.light.init_roughness, *rc]):
             raise ConfigError(f"shape.light.init_roughness={self.light.init_roughness} and its "
                               f"candidates {rc} must lie in (0.02, 1) (0.02: the material "

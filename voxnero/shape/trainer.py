@@ -22,10 +22,10 @@ Orchestration only; the physics lives in :mod:`voxnero.shape.renderer` and the l
   (``mesh.ply``, ``sdf.npz``, ``envmap.exr`` and ``shape.json`` go to ``outputs``: the command
   stages them and moves them in when the run succeeded, :mod:`voxnero.safety.folder`);
 * ``starts/r<radius>/`` (and ``starts/r<radius>_rough<value>/`` for
-  ``light.init_roughness_candidates``) — with a race of starts (``grid.init_trial`` = 1, the
-  default), each start's complete run (same files); the kept one's mesh, grids, env map and
-  summary are copied up, and ``log.jsonl`` holds every start's lines (the others' with a
-  ``trial`` field naming the start's folder).
+  ``light.init_roughness_candidates``) — with a race of starts, each start's complete run
+  (same files); the kept one's mesh, grids, env map and summary are copied up, and
+  ``log.jsonl`` holds every start's lines (the others' with a ``trial`` field naming the
+  start's folder).
 """
 
 from __future__ import annotations
@@ -398,72 +398,9 @@ class ShapeTrainer:
                 f"optim.lr_env={o.lr_env:g}; loss weights; sampling.rays="
                 f"{self.cfg.sampling.rays}) or a degenerate scene (no pixel sees the object)")
 
-    # ------------------------------------------------------------------ first look
-    def _fresh_model(self, radius: float) -> None:
-        """Rebuild model, optimiser and batch RNG as at step 0, the SDF a sphere of ``radius``."""
-        cfg = self.cfg
-        grid = replace(cfg.grid, init_radius=radius)
-        torch.manual_seed(cfg.seed)  # same feature-grid initialisation for every start
-        self.model = ShapeModel(replace(cfg, grid=grid), self.sw).to(self.device)
-        self.opt = self._optimizer()
-        self.gen = torch.Generator(device=self.device).manual_seed(cfg.seed)
-        self.step = 0
-        self.occ_targets = None
-
-    def choose_init(self, fh, bar, stop: Any = None) -> None:
-        """First look: train each initial radius (``grid.init_radius`` and
-        ``grid.init_candidates``) for ``grid.init_trial`` of the run on the same batches and go
-        on with the best photometric fit (mean training PSNR over the trial's last third; another
-        start must beat ``init_radius``'s by ``grid.init_margin`` dB).
-        Recorded as the "init_radius" decision; the steps count in ``train_time`` and go to
-        ``log.jsonl`` with a ``trial`` field."""
-        g = self.cfg.grid
-        radii = [g.init_radius] + [r for r in g.init_candidates if r != g.init_radius]
-        n = max(1, int(g.init_trial * self.cfg.iters))
-        scores: list[float] = []
-        best: tuple[float, int, dict] | None = None
-        for k, radius in enumerate(radii):
-            self._fresh_model(radius)
-            psnrs = []
-            bar.reset(total=self.cfg.iters)
-            bar.set_description(f"shape (start r={radius:g})")
-            for _ in range(n):
-                rec = self._timed_step(bar)
-                psnrs.append(rec["psnr"])
-                if stop is not None and stop.flag:
-                    raise KeyboardInterrupt
-                if self.step % max(1, self.cfg.iters // 200) == 0:
-                    self._log_line(fh, {"time": round(self.train_time, 2), "step": self.step,
-                                        "trial": f"r{radius:g}", **rec})
-            tail = [p for p in psnrs[-max(1, n // 3):] if math.isfinite(p)]
-            score = float(np.mean(tail)) if tail else -math.inf
-            scores.append(round(score, 3))
-            self.log(f"[shape] start r={radius:g}: training PSNR {score:.2f} dB after {n} steps")
-            margin = 0.0 if best is None or best[1] != 0 else g.init_margin
-            if best is None or score > best[0] + margin:
-                best = (score, k, {"model": self.model, "opt": self.opt, "gen": self.gen,
-                                   "occ": self.occ_targets})
-        assert best is not None
-        score, k, st = best
-        self.model, self.opt, self.gen = st["model"], st["opt"], st["gen"]
-        self.occ_targets = st["occ"]
-        self.step = n
-        bar.set_description("shape")
-        bar.reset(total=self.cfg.iters)
-        bar.update(n)
-        dec = adaptive.Decision(
-            "init_radius", radii[k], [g.init_radius] + list(g.init_candidates),
-            f"best training PSNR of {len(radii)} starts after {n} steps (another start must "
-            f"beat r={g.init_radius:g} by {g.init_margin:g} dB): "
-            + ", ".join(f"r={r:g}: {p:.2f} dB" for r, p in zip(radii, scores, strict=True)),
-            {"radii": radii, "psnr": scores, "trial_steps": n,
-             "seconds": round(self.train_time, 2)}, n)
-        self.decisions.append(dec)
-        self.log(dec.line())
-        self.write_decisions()
-
+    # ------------------------------------------------------------------ race of starts
     def race_starts(self) -> Path:
-        """Race of starts (``grid.init_trial`` = 1). Each start is a complete run in
+        """Race of starts. Each start is a complete run in
         ``starts/<name>/`` with its own checkpoints (re-running resumes the unfinished one and
         skips the finished ones), judged on its final fit to the photos (:meth:`fit_psnr`).
 
@@ -770,8 +707,7 @@ class ShapeTrainer:
         from tqdm import tqdm
 
         cfg = self.cfg
-        if (cfg.grid.init_candidates or cfg.light.init_roughness_candidates) and \
-                cfg.grid.init_trial >= 1.0:
+        if cfg.grid.init_candidates or cfg.light.init_roughness_candidates:
             return self.race_starts()
         self.load_checkpoint()
         self.log(f"[shape] switches: {asdict(self.sw)}")
@@ -784,14 +720,6 @@ class ShapeTrainer:
         last_ckpt = time.perf_counter()
         log_every = max(1, cfg.iters // 200)
         with open(self.out / "log.jsonl", "a") as fh, GracefulStop() as stop:
-            if self.step == 0 and cfg.grid.init_candidates and cfg.grid.init_trial < 1.0:
-                try:
-                    self.choose_init(fh, bar, stop)
-                except KeyboardInterrupt:
-                    bar.close()
-                    self.log("[shape] stopped during the first look (initial radius); it "
-                             "restarts when the same command is re-run")
-                    raise
             try:
                 while self.step < cfg.iters:
                     rec = self._timed_step(bar)
