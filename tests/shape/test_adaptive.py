@@ -112,12 +112,13 @@ def test_resolution_capped_by_footprint(size, expect):
 
 
 def test_trainer_adapts_grid_for_a_64px_scene(tmp_path):
+    from voxnero.shape.schedules import grid_res
     from voxnero.shape.trainer import ShapeTrainer
 
     img = np.random.default_rng(0).random((8, 64, 64, 3)).astype(np.float32)
     cfg = from_dict(ShapeConfig, {"grid": {"res": [48, 96]}, "eval_every_s": 0})
     tr = ShapeTrainer(cfg, _scene(img), tmp_path, progress=False, log=lambda s: None)
-    assert tr.cfg.grid.res == [48, 64] and tr.res_at(cfg.iters) == 64
+    assert tr.cfg.grid.res == [48, 64] and grid_res(tr.cfg, cfg.iters) == 64
     assert cfg.grid.res == [48, 96]  # the user's config is not modified
     off = from_dict(ShapeConfig, {"grid": {"res": [48, 96], "res_auto": False}})
     tr2 = ShapeTrainer(off, _scene(img), tmp_path / "b", progress=False, log=lambda s: None)

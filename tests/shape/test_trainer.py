@@ -16,6 +16,7 @@ import torch
 
 from voxnero.config import from_dict
 from voxnero.eval.chamfer import chamfer_points
+from voxnero.shape import starts
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.trainer import CKPT, ShapeTrainer
 
@@ -129,7 +130,7 @@ def test_sigterm_saves_checkpoint(scene, tmp_path):
 
 
 def test_resolve_switches_decisions():
-    from voxnero.shape.trainer import resolve_switches
+    from voxnero.shape.light_switch import resolve_switches
 
     def sw(light, background="unknown"):
         cfg = from_dict(ShapeConfig, {"light": light})
@@ -214,7 +215,7 @@ def test_race_of_roughness_starts_from_the_kept_radius(scene, tmp_path):
     assert rough["value"] == kept
     folder = "r0.7" if kept == 0.4 else "r0.7_rough0.1"
     assert path.read_bytes() == (tmp_path / "starts" / folder / "mesh.ply").read_bytes()
-    assert tr.fit_psnr() == pytest.approx(max(fits), abs=1e-3)
+    assert starts.fit_psnr(tr) == pytest.approx(max(fits), abs=1e-3)
     assert sorted(p.name for p in (tmp_path / "starts").iterdir()) == \
         ["r0.15", "r0.7", "r0.7_rough0.1"]
     assert tr.step == 90

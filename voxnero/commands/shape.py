@@ -1,7 +1,7 @@
 """``voxnero shape``: stage 1 — SDF geometry of a reflective object from posed photos.
 
 Writes ``mesh.ply`` (input frame) and the run files described in
-:mod:`voxnero.shape.trainer` into ``--out``. Re-running the same command resumes from the last
+:mod:`voxnero.shape.run_files` into ``--out``. Re-running the same command resumes from the last
 checkpoint (Ctrl-C or ``kill`` save one first); another scene or other settings are refused
 unless ``--fresh``. The folder is locked for the run, and ``mesh.ply``, ``sdf.npz``,
 ``envmap.exr``, ``shape.json`` and ``config.yaml`` are replaced only when it succeeds
@@ -48,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
     from voxnero.device import default_device
     from voxnero.safety.folder import RunFolder
     from voxnero.shape.config import ShapeConfig
-    from voxnero.shape.trainer import STATE, ShapeTrainer
+    from voxnero.shape.run_files import STATE
+    from voxnero.shape.trainer import ShapeTrainer
 
     cfg = resolve(ShapeConfig, "shape", args.preset, args.overrides)
     device = default_device(args.device)

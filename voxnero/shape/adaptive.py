@@ -26,6 +26,7 @@ its evidence and reason in ``RUN/decisions.json`` and logs it.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from dataclasses import asdict, dataclass, field
@@ -216,6 +217,26 @@ def adapt_resolution(res: list[int], coarse: int, fine: int, coarse_keep: int, b
                   f" samples {coarse}/{fine}/{coarse_keep} -> {c}/{fi}/{k}")
     return new, (c, fi, k), Decision("grid_res", {"res": new, "samples": [c, fi, k]}, True,
                                      reason, ev)
+
+
+def adapt_config(cfg: Any, scene: Any, decisions: list[Decision] | None = None) -> Any:
+    """A copy of a stage-1 config with the grid resolutions and sample counts capped by the pixel
+    footprint of the scene's training cameras (:func:`adapt_resolution`, ``grid.res_auto``; the
+    preset's values are upper bounds); the decision is appended to ``decisions``."""
+    out = copy.deepcopy(cfg)
+    try:
+        cams = scene.split("train").cameras
+        fp = pixel_footprint(cams.K, cams.c2w)
+    except Exception:  # no cameras to measure: keep the preset
+        return out
+    sc = cfg.sampling
+    res, (c, f, k), dec = adapt_resolution(cfg.grid.res, sc.coarse, sc.fine, sc.coarse_keep,
+                                           cfg.grid.bound, fp, enabled=cfg.grid.res_auto)
+    out.grid.res = res
+    out.sampling.coarse, out.sampling.fine, out.sampling.coarse_keep = c, f, k
+    if decisions is not None:
+        decisions.append(dec)
+    return out
 
 
 # ------------------------------------------------------------------------------ self-occlusion

@@ -1,0 +1,244 @@
+"""What stage 1 writes into its run folder, and reads back to resume.
+
+The folder itself (usable, locked, outputs staged and moved in on success) is
+:class:`voxnero.safety.folder.RunFolder`, held by the command; the run's fingerprint is
+:mod:`voxnero.safety.fingerprint` and NaN state is refused by
+:func:`voxnero.safety.guard.check_finite`. Files:
+
+* ``checkpoint.pt`` (:func:`save_checkpoint`, :func:`load_checkpoint`) — everything needed to
+  resume bit-identically, with the fingerprint; written atomically;
+* ``log.jsonl`` (:func:`log_line`) — one JSON object per logged step (``time`` in training
+  seconds, ``step``, the losses, ``psnr``, ``s``, ``res``) and, for scenes with ground truth,
+  Chamfer lines (:func:`evaluate`);
+* ``decisions.json`` (:func:`write_decisions`) — every adaptive decision with its evidence;
+* ``preview/step_XXXXXX_{rgb,normal}.png`` (:func:`write_preview`);
+* the outputs ``mesh.ply`` (input frame), ``sdf.npz``, ``envmap.exr`` and ``shape.json``
+  (:func:`write_outputs`), into the trainer's ``outputs`` folder (the command's staging folder);
+* ``starts/<name>/`` — with a race of starts, each start's complete run (these same files,
+  :mod:`voxnero.shape.starts`); ``config.yaml`` — the resolved config, written by the command.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+
+from voxnero.config import to_dict
+from voxnero.errors import RunFolderError
+from voxnero.fields.grid import resample
+from voxnero.safety import fingerprint
+from voxnero.safety.guard import check_finite
+from voxnero.shape import adaptive, light_switch, schedules
+from voxnero.shape.renderer import ShapeModel, render_rays
+
+if TYPE_CHECKING:
+    from voxnero.shape.trainer import ShapeTrainer
+
+CKPT = "checkpoint.pt"
+STATE = ("checkpoint.pt", "checkpoint.tmp", "log.jsonl", "decisions.json", "preview", "starts")
+"""Run state of a folder (``--fresh`` deletes it to start over; outputs are replaced when the
+new run succeeds)."""
+NONFINITE_FIX = ("lower the learning rates (optim.lr_sdf, optim.lr_env ...) or check the "
+                 "scene's images and poses, then re-run with --fresh")
+
+
+# ------------------------------------------------------------------------------ checkpoints
+def state_tensors(tr: ShapeTrainer) -> list[tuple[str, torch.Tensor]]:
+    """Parameters and optimiser moments, named (what a checkpoint saves)."""
+    named = list(tr.model.state_dict().items())
+    for i, st in enumerate(tr.opt.state.values()):
+        named += [(f"optimiser state {i}.{k}", v) for k, v in st.items()
+                  if isinstance(v, torch.Tensor)]
+    return named
+
+
+def save_checkpoint(tr: ShapeTrainer) -> Path:
+    """Atomically write ``checkpoint.pt`` (with the run's fingerprint).
+
+    Raises:
+        TrainingError: the model or the optimiser state holds NaN/Inf (nothing written).
+        RunFolderError: the run folder was removed.
+    """
+    path = tr.out / CKPT
+    check_finite(state_tensors(tr), path, NONFINITE_FIX)
+    if not tr.out.is_dir():
+        raise RunFolderError("the run folder was removed during the run", path=tr.out,
+                             fix="re-run the command (into this --out it starts over)")
+    tmp = path.with_suffix(".tmp")
+    torch.save({"fingerprint": tr.fingerprint,
+                "model": tr.model.state_dict(), "opt": tr.opt.state_dict(),
+                "step": tr.step, "train_time": tr.train_time,
+                "res": tr.model.sdf.res, "gen": tr.gen.get_state(),
+                "config": to_dict(tr.cfg), "switches": asdict(tr.sw),
+                "decisions": [asdict(d) for d in tr.decisions],
+                "occ_pending": tr.occ_pending}, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def load_checkpoint(tr: ShapeTrainer) -> bool:
+    """Resume ``tr`` from its folder's ``checkpoint.pt`` if present; returns whether it did.
+
+    Raises:
+        RunFolderError: the checkpoint was made from another scene or other settings.
+    """
+    path = tr.out / CKPT
+    if not path.is_file():
+        return False
+    ck = torch.load(path, map_location=tr.device, weights_only=False)
+    if not fingerprint.check_resume(ck.get("fingerprint"), tr.fingerprint, path, "shape"):
+        tr.log(f"[shape] note: {path} predates run fingerprints; resuming without "
+               "checking its scene and settings")
+    tr.set_resolution(int(ck["res"]))
+    sw = ck.get("switches", {})
+    if sw.get("occlusion") and tr.model.occlusion is None:  # switched on by "auto"
+        light_switch.enable_nets(tr.model, tr.sw, tr.opt, tr.cfg, bool(sw.get("indirect")),
+                                 add_to_optimizer=False)
+    elif not sw.get("occlusion", True) and tr.model.occlusion is not None:  # dropped
+        light_switch.disable_nets(tr.model, tr.sw, tr.opt, remove_from_optimizer=False)
+        tr.occ_targets = None
+    if "decisions" in ck:
+        tr.decisions = [adaptive.Decision(**d) for d in ck["decisions"]]
+        tr.occ_pending = bool(ck.get("occ_pending", False))
+    tr.model.load_state_dict(ck["model"])
+    tr.opt = tr.make_optimizer()
+    tr.opt.load_state_dict(ck["opt"])
+    tr.step = int(ck["step"])
+    tr.train_time = float(ck["train_time"])
+    tr.gen.set_state(ck["gen"])
+    tr.last_eval = tr.train_time
+    tr.log(f"[shape] resumed from {path} at step {tr.step} ({tr.train_time:.0f} s trained)")
+    return True
+
+
+# ------------------------------------------------------------------------------ log, decisions
+def log_line(fh: IO[str], rec: dict[str, Any]) -> None:
+    """Append one record to ``log.jsonl`` (flushed: a killed run keeps its lines)."""
+    fh.write(json.dumps(rec) + "\n")
+    fh.flush()
+
+
+def after_step(tr: ShapeTrainer, fh: IO[str], bar: Any, rec: dict[str, float]) -> None:
+    """What the loop writes after a step (``tr.step`` = steps done): the step's record to
+    ``log.jsonl`` every ``iters // 200`` steps and at the end, a Chamfer line every
+    ``eval_every_s`` seconds of training (scenes with ground truth) and a preview every
+    ``preview_every`` steps.
+
+    Args:
+        tr: the trainer.
+        fh: ``log.jsonl``, open for appending.
+        bar: the tqdm bar.
+        rec: the step's scalars (:meth:`~voxnero.shape.trainer.ShapeTrainer.train_step`).
+    """
+    cfg = tr.cfg
+    if tr.step % max(1, cfg.iters // 200) == 0 or tr.step == cfg.iters:
+        bar.set_postfix(loss=f"{rec['loss']:.4f}", psnr=f"{rec['psnr']:.1f}", res=rec["res"])
+        log_line(fh, {"time": round(tr.train_time, 2), "step": tr.step, **rec})
+    if cfg.eval_every_s > 0 and tr.eval_split is not None and (
+            tr.train_time - tr.last_eval >= cfg.eval_every_s or tr.step == cfg.iters):
+        tr.last_eval = tr.train_time
+        ch = evaluate(tr)
+        if ch:
+            log_line(fh, {"time": round(tr.train_time, 2), "step": tr.step,
+                          "chamfer": ch["cd"], "acc": ch["acc"], "comp": ch["comp"]})
+            bar.write(f"[shape] step {tr.step} t={tr.train_time:.0f}s chamfer {ch['cd']:.4f}")
+    if cfg.preview_every > 0 and tr.step % cfg.preview_every == 0:
+        write_preview(tr)
+
+
+def write_decisions(tr: ShapeTrainer) -> Path:
+    """Write ``decisions.json`` in the run folder."""
+    return adaptive.write_decisions(tr.out / "decisions.json", tr.decisions)
+
+
+# ------------------------------------------------------------------------------ surfaces
+@torch.no_grad()
+def extract(model: ShapeModel, res: int | None = None, clean: bool = True):
+    """Marching cubes of a model's SDF grid (resampled to ``res``), unit frame; an Open3D
+    triangle mesh, cleaned (:func:`voxnero.mesh.cleanup.clean_mesh`) unless ``clean`` is False."""
+    from voxnero.mesh.cleanup import clean_mesh
+    from voxnero.mesh.extract import extract_mesh
+
+    g = model.sdf.grid.data
+    if res and res != g.shape[-1]:
+        g = resample(g, res)
+    mesh = extract_mesh(g[0].cpu(), model.sdf.bounds.cpu())
+    return clean_mesh(mesh) if clean else mesh
+
+
+def evaluate(tr: ShapeTrainer) -> dict[str, float] | None:
+    """Chamfer of the current mesh at the test views (scenes with GT), input frame."""
+    if tr.eval_split is None:
+        return None
+    from voxnero.eval.chamfer import chamfer_at_views
+
+    te = tr.eval_split
+    try:
+        mesh = tr.extract(tr.cfg.eval_mesh_res or None)
+    except Exception as e:
+        tr.log(f"[shape] evaluation skipped: {e}")
+        return None
+    r = chamfer_at_views(mesh, te.cameras, te.depth, te.masks, norm=tr.scene.norm)
+    return {k: float(v) for k, v in r.items()}
+
+
+# ------------------------------------------------------------------------------ previews
+@torch.no_grad()
+def render_image(tr: ShapeTrainer, index: int = 0, downscale: int = 2, chunk: int = 8192
+                 ) -> dict[str, torch.Tensor]:
+    """Render train view ``index``: ``rgb (H', W', 3)`` linear and ``normal (H', W', 3)``."""
+    from voxnero.cameras.rays import image_rays
+
+    o, d = image_rays(tr.cams, index, downscale)
+    hh, ww = o.shape[:2]
+    o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+    s = schedules.sharpness(tr.cfg, tr.step)
+    tr.model.env.prepare()
+    rgbs, nors = [], []
+    for i in range(0, o.shape[0], chunk):
+        out = render_rays(tr.model, o[i:i + chunk], d[i:i + chunk], s, tr.cfg, train=False)
+        rgbs.append(out["rgb"])
+        nors.append(out["normal"] * out["acc"][:, None])
+    tr.model.env.release()
+    return {"rgb": torch.cat(rgbs).view(hh, ww, 3), "normal": torch.cat(nors).view(hh, ww, 3)}
+
+
+def write_preview(tr: ShapeTrainer) -> None:
+    """Write ``preview/step_XXXXXX_{rgb,normal}.png`` for train view 0."""
+    from voxnero.io.images import save_linear_png, write_png
+
+    img = render_image(tr, 0)
+    p = tr.out / "preview"
+    p.mkdir(exist_ok=True)
+    save_linear_png(p / f"step_{tr.step:06d}_rgb.png", img["rgb"].cpu().numpy())
+    write_png(p / f"step_{tr.step:06d}_normal.png",
+              (img["normal"].cpu().numpy() * 0.5 + 0.5).clip(0, 1))
+
+
+# ------------------------------------------------------------------------------ outputs
+def write_outputs(tr: ShapeTrainer) -> Path:
+    """Final mesh (input frame), SDF grid, env map and summary JSON into ``tr.outputs``;
+    ``decisions.json`` into the run folder. Returns the mesh path."""
+    from voxnero.io.exr import write_exr
+    from voxnero.mesh.io import save_mesh
+
+    out = tr.outputs
+    out.mkdir(parents=True, exist_ok=True)
+    mesh = tr.extract(tr.cfg.mesh_res)
+    path = save_mesh(out / "mesh.ply", mesh, tr.scene.norm)
+    g = tr.model.sdf
+    np.savez_compressed(out / "sdf.npz", sdf=g.grid.data[0].cpu().numpy(),
+                        bounds=g.bounds.cpu().numpy())
+    write_exr(out / "envmap.exr", tr.model.env.image().detach().cpu().numpy())
+    write_decisions(tr)
+    summary = {"switches": asdict(tr.sw), "steps": tr.step,
+               "train_time_s": tr.train_time, "grid_res": g.res,
+               "n_vertices": len(mesh.vertices), "n_triangles": len(mesh.triangles)}
+    (out / "shape.json").write_text(json.dumps(summary, indent=2))
+    return path
