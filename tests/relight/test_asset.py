@@ -85,9 +85,12 @@ def test_obj_and_glb_agree(sphere_asset_files):
     assert d2.max() < 1e-10
     ga, gm, gr = g.vertex_material()
     oa, om, orr = o.vertex_material()
-    # the same texels through both files (OBJ flips v on write, the loader flips it back)
-    np.testing.assert_allclose(oa.numpy(), ga.numpy()[idx], atol=2e-3)
-    np.testing.assert_allclose(orr.numpy(), gr.numpy()[idx], atol=2e-3)
+    # the same texels through both files (OBJ flips v on write, the loader flips it back);
+    # each file holds its own 8-bit PNGs, so a texel may differ by a rounding step or two
+    # (seen once: 0.0068 = 1.7/255 on one vertex of 2454); a flipped v would be off by far more
+    for of, gf in ((oa, ga), (orr, gr)):
+        diff = np.abs(of.numpy() - gf.numpy()[idx])
+        assert (diff > 2e-3).mean() < 1e-3 and diff.max() < 2.5 / 255
 
 
 @settings(max_examples=40, deadline=None)
