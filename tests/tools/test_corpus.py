@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from tools.corpus import bench, build, envmaps, rigs, shapes
+from tools.corpus import bench, bg_consistency, build, envmaps, rigs, shapes
 from tools.corpus.scenes import SCENES, Material, SceneSpec
 
 # --------------------------------------------------------------------------- shapes / genus
@@ -214,3 +214,17 @@ def test_mitsuba_background_matches_the_env_map_convention():
         assert build.background_check(env, rgb, cov, c2w, f) > 30.0
     finally:
         build.WIDTH = build.HEIGHT = 256
+
+
+def test_background_consistency_finds_what_the_env_map_does_not_explain():
+    """Six views along the same directions see one smooth environment; an 'object' patch sits
+    in two of them at different places: it is found there and nowhere else."""
+    c2w = rigs.look_at_gl(np.array([[3.0, -2.0, 1.0]]))[0]
+    d = bg_consistency.pixel_directions(c2w, 40.0, 48, 32)
+    env = 0.5 + 0.3 * np.stack([d[..., 0], d[..., 1], d[..., 2]], -1)  # smooth in direction
+    images = np.repeat(env[None], 6, axis=0)
+    truth = np.zeros((6, 32, 48), bool)
+    truth[1, 5:12, 10:20] = truth[4, 18:28, 25:40] = True
+    images[truth] = [0.9, 0.1, 0.1]
+    pred = bg_consistency.object_mask(images, np.repeat(d[None], 6, axis=0), bins_w=128)
+    assert np.array_equal(pred, truth)
