@@ -24,14 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-def pixel_directions(c2w_gl: np.ndarray, focal: float, width: int, height: int) -> np.ndarray:
-    """``(H, W, 3)`` world unit directions through pixel centres of an OpenGL camera."""
-    j, i = np.mgrid[0:height, 0:width]
-    cam = np.stack([(i + 0.5 - width / 2) / focal, -(j + 0.5 - height / 2) / focal,
-                    -np.ones_like(i, float)], -1)
-    d = cam @ c2w_gl[:3, :3].T
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+from tools.corpus.rigs import pixel_directions
 
 
 def object_mask(images: np.ndarray, dirs: np.ndarray, bins_w: int = 512, tau: float = 0.06

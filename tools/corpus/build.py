@@ -89,12 +89,8 @@ def background_check(env: np.ndarray, rgb: np.ndarray, coverage: np.ndarray, c2w
     orientation and the camera conventions of the written files agree with Mitsuba."""
     from voxnero.io.color import linear_to_srgb
 
-    j, i = np.mgrid[0:HEIGHT, 0:WIDTH]
-    cam = np.stack([(i + 0.5 - WIDTH / 2) / focal, -(j + 0.5 - HEIGHT / 2) / focal,
-                    -np.ones_like(i, float)], axis=-1)
-    d = cam @ c2w_gl[:3, :3].T
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    pred = envmaps.lookup(env, d)
+    h, w = coverage.shape
+    pred = envmaps.lookup(env, rigs.pixel_directions(c2w_gl, focal, w, h))
     bg = coverage == 0
     a = linear_to_srgb(np.clip(pred[bg], 0, 1))
     b = linear_to_srgb(np.clip(rgb[bg], 0, 1))

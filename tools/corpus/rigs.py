@@ -42,6 +42,17 @@ def look_at_gl(eyes: np.ndarray) -> np.ndarray:
     return c2w
 
 
+def pixel_directions(c2w_gl: np.ndarray, focal: float, width: int, height: int) -> np.ndarray:
+    """``(H, W, 3)`` world unit directions through the pixel centres of an OpenGL camera
+    (``c2w_gl`` (4, 4); pixel (i, j) centre at (i + 0.5, j + 0.5), principal point at the image
+    centre, square pixels of ``focal`` px)."""
+    j, i = np.mgrid[0:height, 0:width]
+    cam = np.stack([(i + 0.5 - width / 2) / focal, -(j + 0.5 - height / 2) / focal,
+                    -np.ones_like(i, float)], axis=-1)
+    d = cam @ np.asarray(c2w_gl, dtype=np.float64)[:3, :3].T
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
 def fibonacci(n: int, elev_min_deg: float, elev_max_deg: float, phase: float = 0.0,
               offset: float = 0.5) -> np.ndarray:
     """``(n, 3)`` unit directions, area-uniform over the elevation band, golden-angle azimuths."""

@@ -25,6 +25,7 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from tools.corpus.bench import run_dirs  # noqa: E402
+from tools.corpus.rigs import pixel_directions  # noqa: E402
 
 
 def normal_image(mesh_path: Path, c2w_gl: np.ndarray, focal: float, width: int, height: int
@@ -36,10 +37,7 @@ def normal_image(mesh_path: Path, c2w_gl: np.ndarray, focal: float, width: int, 
     mesh = o3d.io.read_triangle_mesh(str(mesh_path))
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    j, i = np.mgrid[0:height, 0:width]
-    d = np.stack([(i + 0.5 - width / 2) / focal, -(j + 0.5 - height / 2) / focal,
-                  -np.ones_like(i, float)], axis=-1) @ c2w_gl[:3, :3].T
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    d = pixel_directions(c2w_gl, focal, width, height)
     rays = np.concatenate([np.broadcast_to(c2w_gl[:3, 3], d.shape), d], axis=-1)
     hit = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
     n = hit["primitive_normals"].numpy()
