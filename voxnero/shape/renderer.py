@@ -2,7 +2,8 @@
 
 Per ray (unit frame, ``o + t·d``):
 
-1. clip to the bounding sphere; a coarse no-grad pass of stratified samples gives NeuS weights and
+1. clip to the bounding sphere (and to the SDF grid's box when the coarse stage fitted it to the
+   object); a coarse no-grad pass of stratified samples gives NeuS weights and
    fine samples are drawn where the weight is (:mod:`voxnero.shape.sampler`);
 2. the SDF grid returns value and analytic gradient at every sample; NeuS turns them into
    compositing weights ``w`` (:mod:`voxnero.shape.neus`);
@@ -27,7 +28,7 @@ from voxnero.fields.lights import EnvLight, IndirectNet, OcclusionNet
 from voxnero.render.brdf import safe_normalize
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.neus import alpha_from_samples, alpha_from_sdf_sequence, composite_weights
-from voxnero.shape.sampler import interval_lengths, merge_sorted, ray_sphere, sample_pdf, stratified
+from voxnero.shape.sampler import clip_rays, interval_lengths, merge_sorted, sample_pdf, stratified
 from voxnero.shape.shading import reflect, shade
 
 
@@ -113,7 +114,7 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
     sc = cfg.sampling
     r = origins.shape[0]
     dev = origins.device
-    near, far, hit = ray_sphere(origins, dirs, sc.radius)
+    near, far, hit = clip_rays(origins, dirs, sc.radius, model.sdf.bounds)
     bg = background(model, dirs)
     rgb = bg.clone()
     acc_all = torch.zeros(r, device=dev)

@@ -106,7 +106,14 @@ def load_checkpoint(tr: ShapeTrainer) -> bool:
     if "decisions" in ck:
         tr.decisions = [adaptive.Decision(**d) for d in ck["decisions"]]
         tr.occ_pending = bool(ck.get("occ_pending", False))
+        for d in tr.decisions:  # resolutions re-capped for a fitted box (coarse stage)
+            if d.name == "grid_res" and isinstance(d.value, dict):
+                tr.cfg.grid.res = list(d.value["res"])
+                (tr.cfg.sampling.coarse, tr.cfg.sampling.fine,
+                 tr.cfg.sampling.coarse_keep) = d.value["samples"]
     tr.model.load_state_dict(ck["model"])
+    b = tr.model.sdf.bounds
+    tr.coarse_voxel = float(b[1, 0] - b[0, 0]) / (tr.cfg.grid.res[0] - 1)
     tr.opt = tr.make_optimizer()
     tr.opt.load_state_dict(ck["opt"])
     tr.step = int(ck["step"])

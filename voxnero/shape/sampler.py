@@ -35,6 +35,43 @@ def ray_sphere(origins: torch.Tensor, dirs: torch.Tensor, radius: float
     return near, far, hit
 
 
+def ray_box(origins: torch.Tensor, dirs: torch.Tensor, bounds: torch.Tensor
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Intersect rays with an axis-aligned box (slab method).
+
+    Args:
+        origins: ``(R, 3)``; dirs: ``(R, 3)`` unit directions; bounds: ``(2, 3)`` min and max
+            corners.
+
+    Returns:
+        ``near (R,)``, ``far (R,)`` (``near ≥ 0``; both 0 for a miss) and ``hit (R,)`` bool.
+    """
+    inv = 1.0 / torch.where(dirs.abs() < 1e-12, torch.full_like(dirs, 1e-12), dirs)
+    t0 = (bounds[0] - origins) * inv
+    t1 = (bounds[1] - origins) * inv
+    near = torch.clamp(torch.minimum(t0, t1).amax(-1), min=0.0)
+    far = torch.clamp(torch.maximum(t0, t1).amin(-1), min=0.0)
+    hit = far > near
+    zero = torch.zeros_like(near)
+    return torch.where(hit, near, zero), torch.where(hit, far, zero), hit
+
+
+def clip_rays(origins: torch.Tensor, dirs: torch.Tensor, radius: float,
+              bounds: torch.Tensor | None = None
+              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The segment of each ray inside the centred sphere of ``radius`` and, if given, inside
+    the box ``bounds`` (``(2, 3)``): ``near (R,)``, ``far (R,)``, ``hit (R,)`` as
+    :func:`ray_sphere`. A box that contains the sphere changes nothing."""
+    near, far, hit = ray_sphere(origins, dirs, radius)
+    if bounds is None or bool((bounds[0] <= -radius).all() and (bounds[1] >= radius).all()):
+        return near, far, hit
+    nb, fb, hb = ray_box(origins, dirs, bounds)
+    near, far = torch.maximum(near, nb), torch.minimum(far, fb)
+    hit = hit & hb & (far > near)
+    zero = torch.zeros_like(near)
+    return torch.where(hit, near, zero), torch.where(hit, far, zero), hit
+
+
 def stratified(near: torch.Tensor, far: torch.Tensor, n: int, jitter: bool = True,
                generator: torch.Generator | None = None) -> torch.Tensor:
     """``n`` stratified depths per ray in ``[near, far]``, ``(R, n)`` sorted.

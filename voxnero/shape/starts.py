@@ -32,8 +32,139 @@ independent of the training draws)."""
 
 
 def has_race(cfg: ShapeConfig) -> bool:
-    """Whether ``cfg`` asks for more than one start."""
-    return bool(cfg.grid.init_candidates or cfg.light.init_roughness_candidates)
+    """Whether ``cfg`` asks for more than one start: the coarse stage's start races the
+    sphere of ``grid.init_radius`` unless ``coarse.race`` is off."""
+    coarse = cfg.coarse.iters > 0 and cfg.coarse.race
+    return bool(coarse or cfg.grid.init_candidates or cfg.light.init_roughness_candidates)
+
+
+def coarse_done(tr: ShapeTrainer) -> bool:
+    """Whether ``tr``'s SDF already has its start from the coarse stage (a resumed run)."""
+    return any(d.name == "coarse" for d in tr.decisions)
+
+
+def coarse_start(tr: ShapeTrainer) -> None:
+    """Give ``tr``'s SDF grid its start from the coarse free-space stage
+    (:mod:`voxnero.shape.coarse`, :mod:`voxnero.shape.hull`) and record the decision "coarse".
+
+    The coarse stage trains the density grid and ``tr``'s own env map (which the SDF stage goes
+    on with); the filled occupancy's signed distance, resampled to the SDF grid, replaces the
+    sphere. Its steps are not SDF steps (``tr.step`` stays 0); its seconds count in
+    ``tr.train_time``.
+    """
+    import time
+
+    import numpy as np
+
+    from voxnero.fields.grid import resample
+    from voxnero.shape import hull
+    from voxnero.shape.coarse import CoarseModel, train_coarse
+
+    c, lc = tr.cfg.coarse, tr.cfg.loss
+    t0 = time.perf_counter()
+    model = CoarseModel(c.res, tr.cfg.grid.bound, c.feat_dim, c.hidden, c.alpha_init
+                        ).to(tr.device)
+    bar = None
+    if tr.progress:
+        from tqdm import tqdm
+        bar = tqdm(total=c.iters, desc="coarse", dynamic_ncols=True)
+
+    def progress(it: int, loss: float) -> None:
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss:.4f}")
+
+    hist = train_coarse(model, tr.model.env, lambda n: tr.pixel_batch(n, tr.gen),
+                        lambda p, t: losses.color_loss(p, t, lc.charbonnier_eps, lc.color_space),
+                        c.iters, c.rays, c.samples, c.lr_grid, c.lr_head, tr.cfg.optim.lr_env,
+                        c.tv, 0.0, tr.cfg.sampling.radius, tr.gen, progress)
+    if bar is not None:
+        bar.close()
+    alpha = model.voxel_alpha().cpu().numpy()
+    if c.smooth > 0:
+        from scipy import ndimage
+        alpha = ndimage.gaussian_filter(alpha, c.smooth)
+    inside = hull.solid(alpha, c.threshold)
+    sdf = hull.signed_distance(inside, model.density_grid.voxel)
+    g = tr.model.sdf
+    box = None
+    if c.fit_box:
+        box = hull.fitted_box(inside, model.density_grid.bounds.cpu().numpy(),
+                              c.margin * model.density_grid.voxel, tr.cfg.grid.bound)
+    coarse_sdf = torch.from_numpy(sdf)[None].to(g.grid)
+    if not inside.any():
+        pass  # nothing found: the sphere start stays (the decision says so)
+    elif box is None:
+        with torch.no_grad():
+            g.grid.copy_(resample(coarse_sdf, g.res))
+    else:
+        fit_grid_to_box(tr, torch.from_numpy(box).float(), coarse_sdf,
+                        model.density_grid.bounds)
+    seconds = time.perf_counter() - t0
+    tr.train_time += seconds
+    n_in = int(inside.sum())
+    tail = float(np.mean(hist[-20:])) if hist else float("nan")
+    reason = (f"coarse free-space stage ({c.iters} steps, {c.res}^3 density): "
+              f"{n_in} of {inside.size} voxels inside ({n_in / inside.size:.2%}) at opacity "
+              f"> {c.threshold:g} per voxel, filled; the SDF starts from their signed distance")
+    if n_in == 0:
+        reason = ("coarse free-space stage found no occupied voxel at opacity > "
+                  f"{c.threshold:g}: the SDF keeps its sphere start (r={tr.cfg.grid.init_radius:g};"
+                  " too few coarse.iters, or check the photos and poses)")
+    if box is not None:
+        reason += (f"; SDF grid fitted to the object's box (side {box[1, 0] - box[0, 0]:.3f}, "
+                   f"{g.res}^3, voxel {g.voxel:.4f})")
+    tr.decisions.append(adaptive.Decision(
+        "coarse", "hull" if n_in else "sphere", c.iters,
+        reason, {"inside_voxels": n_in, "grid_res": c.res, "threshold": c.threshold,
+                 "final_loss": round(tail, 5), "seconds": round(seconds, 2),
+                 "max_alpha": round(float(alpha.max()), 4),
+                 "sdf_box": None if box is None else box.round(4).tolist(),
+                 "sdf_voxel": round(g.voxel, 6)}, 0))
+
+
+def with_coarse_schedule(cfg: ShapeConfig) -> ShapeConfig:
+    """The config of a start from the coarse stage's hull: the SDF stage begins sharp
+    (``coarse.s_start``), on one grid of ``coarse.sdf_res`` and with ``coarse.normal_smooth``, since its
+    surface is already near the object's (a blurry start erodes thin parts, a normal smoothness one voxel wide removes rods
+    of that width: docs/STAGE1.md, finding 17)."""
+    c = cfg.coarse
+    return replace(cfg, neus=replace(cfg.neus, s_start=c.s_start),
+                   loss=replace(cfg.loss, normal_smooth=c.normal_smooth),
+                   grid=replace(cfg.grid, res=[c.sdf_res], upsample_at=[]))
+
+
+def fit_grid_to_box(tr: ShapeTrainer, box: torch.Tensor, sdf: torch.Tensor,
+                    sdf_bounds: torch.Tensor) -> None:
+    """Move ``tr``'s SDF grid onto the cube ``box`` (``(2, 3)``) with the values of ``sdf``
+    (``(1, R, R, R)`` over ``sdf_bounds``) resampled there, at the preset's resolutions capped
+    again by the pixel footprint for the smaller cube (the decision "grid_res" is replaced), and
+    rebuild the optimiser (no step has been taken yet)."""
+    from voxnero.fields.grid import grid_points, grid_sample_points
+
+    half = 0.5 * float(box[1, 0] - box[0, 0])
+    cfg_in = with_coarse_schedule(tr.cfg_in)
+    sc = cfg_in.sampling
+    fp = adaptive.pixel_footprint(tr.cams.K, tr.cams.c2w)
+    res, (c, f, k), dec = adaptive.adapt_resolution(
+        cfg_in.grid.res, sc.coarse, sc.fine, sc.coarse_keep, half, fp, cfg_in.grid.res_auto)
+    tr.cfg.grid.res = res
+    tr.cfg.sampling.coarse, tr.cfg.sampling.fine, tr.cfg.sampling.coarse_keep = c, f, k
+    tr.decisions = [d for d in tr.decisions if d.name != "grid_res"] + [dec]
+    r0 = schedules.grid_res(tr.cfg, tr.step)
+    pts = grid_points(r0, box.to(sdf))
+    values = grid_sample_points(sdf, pts.reshape(-1, 3), sdf_bounds.to(sdf)).view(1, r0, r0, r0)
+    tr.model.sdf.set_box(box, values)
+    tr.coarse_voxel = tr.model.sdf.voxel
+    tr.opt = tr.make_optimizer()
+    if tr.cfg.optim.lr_sdf_per_voxel:
+        # the learning rates are tuned for the sphere start's first grid; Adam moves every voxel
+        # by ~lr, so keep the step the same fraction of the (finer) voxel of the fitted grid
+        # (a step of 0.7 voxel at lr 1e-2 left bowl_silver a noisy shell of genus 721)
+        ref = 2.0 * tr.cfg_in.grid.bound / (tr.cfg_in.grid.res[0] - 1)
+        for group in tr.opt.param_groups:
+            if group.get("name") == "sdf":
+                group["lr"] *= tr.model.sdf.voxel / ref
 
 
 @torch.no_grad()
@@ -68,18 +199,27 @@ def race(tr: ShapeTrainer) -> Path:
     Returns:
         The kept mesh (input frame).
     """
-    g, lc = tr.cfg_in.grid, tr.cfg_in.light
-    radii = [g.init_radius] + [r for r in g.init_candidates if r != g.init_radius]
+    g, lc, co = tr.cfg_in.grid, tr.cfg_in.light, tr.cfg_in.coarse
+    radii: list[float | None] = [g.init_radius] + [r for r in g.init_candidates
+                                                    if r != g.init_radius]
+    if co.iters > 0:  # the coarse stage's start first, the spheres as fall-backs
+        radii = [None] + (radii if co.race else [])
     roughs = [r for r in lc.init_roughness_candidates if r != lc.init_roughness]
     runs: list[tuple[str, float, ShapeTrainer | None]] = []  # (folder name, fit, trainer)
     seconds, steps = 0.0, 0
 
-    def start(radius: float, rough: float | None, k: int, n: int) -> float:
+    def start(radius: float | None, rough: float | None, k: int, n: int) -> float:
         nonlocal seconds, steps
-        name = f"r{radius:g}" if rough is None else f"r{radius:g}_rough{rough:g}"
+        name = "coarse" if radius is None else f"r{radius:g}"
+        name = name if rough is None else f"{name}_rough{rough:g}"
         light = lc if rough is None else replace(lc, init_roughness=rough)
-        sub = replace(tr.cfg_in, grid=replace(g, init_radius=radius, init_candidates=[]),
+        sub = replace(tr.cfg_in, grid=replace(g, init_candidates=[]),
                       light=replace(light, init_roughness_candidates=[]))
+        if radius is None:
+            sub = with_coarse_schedule(replace(sub, coarse=replace(co, race=False)))
+        else:
+            sub = replace(sub, grid=replace(sub.grid, init_radius=radius),
+                          coarse=replace(co, iters=0))
         folder = tr.out / "starts" / name
         tr.log(f"[shape] start {name} ({k} of {n}): a complete run in {folder}")
         child = type(tr)(sub, tr.scene, folder, tr.device, tr.progress, tr.log)
@@ -105,11 +245,15 @@ def race(tr: ShapeTrainer) -> Path:
             best_k = k
         keep_only(best_k)
     k_radius = best_k
+    names = ["coarse" if r is None else f"r={r:g}" for r in radii]
+    first = names[0] if co.iters > 0 else f"r={g.init_radius:g}"
     decisions = [adaptive.Decision(
-        "init_radius", radii[k_radius], [g.init_radius] + list(g.init_candidates),
+        "start" if co.iters > 0 else "init_radius",
+        "coarse" if radii[k_radius] is None else radii[k_radius],
+        names if co.iters > 0 else [g.init_radius] + list(g.init_candidates),
         f"best fit of {len(radii)} complete runs to {tr.cfg.fit_rays} fixed training rays "
-        f"(another start must beat r={g.init_radius:g} by {g.init_margin:g} dB): "
-        + ", ".join(f"r={r:g}: {runs[i][1]:.2f} dB" for i, r in enumerate(radii)),
+        f"(another start must beat {first} by {g.init_margin:g} dB): "
+        + ", ".join(f"{nm}: {runs[i][1]:.2f} dB" for i, nm in enumerate(names)),
         {"radii": radii, "psnr": [runs[i][1] for i in range(len(radii))],
          "trial_steps": tr.cfg.iters}, tr.cfg.iters)]
     if roughs:
@@ -124,7 +268,7 @@ def race(tr: ShapeTrainer) -> Path:
         kept = lc.init_roughness if best_k < len(radii) else roughs[best_k - len(radii)]
         decisions.append(adaptive.Decision(
             "init_roughness", kept, values,
-            f"best fit of {len(values)} complete runs from r={radii[k_radius]:g} "
+            f"best fit of {len(values)} complete runs from {names[k_radius]} "
             f"({tr.cfg.fit_rays} fixed training rays): "
             + ", ".join(f"{v:g}: {p:.2f} dB" for v, p in zip(values, fits, strict=True)),
             {"values": values, "psnr": fits, "radius": radii[k_radius]}, tr.cfg.iters))
@@ -149,7 +293,8 @@ def race(tr: ShapeTrainer) -> Path:
         tr.log(d.line())
     tr.write_decisions()
     summary = json.loads((tr.outputs / "shape.json").read_text())
-    summary.update(train_time_s=seconds, race_steps=steps, init_radius=radii[k_radius],
+    summary.update(train_time_s=seconds, race_steps=steps,
+                   init_radius="coarse" if radii[k_radius] is None else radii[k_radius],
                    init_roughness=win.cfg.light.init_roughness)
     (tr.outputs / "shape.json").write_text(json.dumps(summary, indent=2))
     return tr.outputs / "mesh.ply"

@@ -72,6 +72,8 @@ class ShapeTrainer:
         self.cfg_in = cfg
         """The config as given (before :func:`~voxnero.shape.adaptive.adapt_config`): each start
         of a race gets it."""
+        if cfg.coarse.iters > 0:
+            cfg = starts.with_coarse_schedule(cfg)
         self.cfg = cfg = adaptive.adapt_config(cfg, scene, self.decisions)
         self.sw = light_switch.resolve_switches(cfg, scene, self.decisions)
         self.occ_pending = cfg.light.occlusion == "auto"
@@ -206,6 +208,9 @@ class ShapeTrainer:
         if starts.has_race(cfg):
             return starts.race(self)
         self.load_checkpoint()
+        if cfg.coarse.iters > 0 and not starts.coarse_done(self):
+            starts.coarse_start(self)
+            self.save_checkpoint()
         self.log(f"[shape] switches: {asdict(self.sw)}")
         for d in self.decisions:
             if d.step == 0:
