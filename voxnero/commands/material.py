@@ -168,7 +168,7 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
 
     # ---- checks: the exported env map reproduces the training background
     env_back = torch.from_numpy(read_envmap(out / "envmap.exr")).float()
-    from voxnero.render.envmap import envmap_lookup
+    from voxnero.render.latlong import envmap_lookup
 
     bg_psnr = float("nan")
     if cache.bg_dirs.shape[0]:
