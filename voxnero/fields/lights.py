@@ -5,8 +5,8 @@ Light arriving along a reflected direction ``r`` at a surface point ``x`` is, as
 ``L = (1 − s)·L_direct(r) + s·L_indirect(x, r)`` with occlusion probability ``s(x, r)``.
 
 * :class:`EnvLight` — the direct light is one equirectangular map of log radiance (+Z up, the
-  mapping of :mod:`voxnero.render.latlong`), used by stage 1 three ways: (1) the background of every ray
-  (a distant environment: the background pixel *is* the light along the ray), (2) specular
+  mapping of :mod:`voxnero.render.latlong`), used by stage 1 three ways: (1) the background of
+  every ray (a distant environment: the background pixel *is* the light along the ray), (2) specular
   reflections, pre-filtered by roughness through a mip chain, (3) diffuse light from its
   order-2 SH projection (cosine convolution). The DESIGN probe measured this explicit map better
   than a free colour net; it is also directly exportable. Stage 2 starts one from the photos'

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import torch
 
-from voxnero.export.envmap import write_envmap
+from voxnero.asset.envmap import write_envmap
 from voxnero.io.exr import read_envmap
 from voxnero.render.latlong import envmap_lookup, pixel_dirs
 
