@@ -32,12 +32,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 from PIL import Image
 
-from voxnero.asset.model import Asset, TextureMaterial, UniformMaterial, make_asset
+from voxnero.asset.model import Asset, make_asset, material_from_maps
 from voxnero.errors import DataError
-from voxnero.io.color import linear_to_srgb, srgb_to_linear
+from voxnero.io.color import linear_to_srgb
 
 if TYPE_CHECKING:  # the writers take a baked mesh; baking (Open3D) is not needed to read
     from voxnero.asset.textures import TexturedMesh
@@ -263,17 +262,8 @@ def load_glb(path: str | Path) -> Asset:
     rf = float(pbr.get("roughnessFactor", 1.0))
     base = image(pbr.get("baseColorTexture"))
     mr = image(pbr.get("metallicRoughnessTexture"))
-    if (base is None and mr is None) or uv is None:
-        mat: UniformMaterial | TextureMaterial = UniformMaterial(tuple(bcf.tolist()), mf, rf)
-    else:
-        size = (base if base is not None else mr).shape[:2]
-        alb = srgb_to_linear(base) * bcf if base is not None else np.ones((*size, 3)) * bcf
-        m = mr[..., 2] * mf if mr is not None else np.full(size, mf)
-        r = mr[..., 1] * rf if mr is not None else np.full(size, rf)
-        mat = TextureMaterial(torch.as_tensor(uv, dtype=torch.float32),
-                              torch.as_tensor(np.asarray(alb), dtype=torch.float32),
-                              torch.as_tensor(m, dtype=torch.float32),
-                              torch.as_tensor(r, dtype=torch.float32))
+    mat = material_from_maps(uv, base, None if mr is None else mr[..., 2],
+                             None if mr is None else mr[..., 1], bcf, mf, rf)
     asset = make_asset(pos, idx, nrm, mat, up, str(path))
     if meta.get("scene"):
         asset.scene = Path(meta["scene"])

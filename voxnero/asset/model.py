@@ -167,6 +167,35 @@ class Asset:
         return m
 
 
+def material_from_maps(uv: np.ndarray | None, base_srgb: np.ndarray | None,
+                       metallic: np.ndarray | None, roughness: np.ndarray | None,
+                       albedo_factor, metallic_factor: float, roughness_factor: float
+                       ) -> UniformMaterial | TextureMaterial:
+    """A file's material: its textures (any may be absent) times its factors, as glTF and MTL
+    define them; uniform (the factors) when there is no texture or no texture coordinates.
+
+    Args:
+        uv: (V, 2) texture coordinates (glTF convention), or None.
+        base_srgb: (S, S, 3) sRGB-encoded base colour in [0, 1], or None.
+        metallic, roughness: (S, S) linear maps in [0, 1], or None.
+        albedo_factor: (3,) linear factor of the base colour; metallic_factor, roughness_factor.
+    """
+    from voxnero.io.color import srgb_to_linear
+
+    if (base_srgb is None and metallic is None and roughness is None) or uv is None:
+        return UniformMaterial(tuple(float(c) for c in albedo_factor), metallic_factor,
+                               roughness_factor)
+    size = next(t for t in (base_srgb, metallic, roughness) if t is not None).shape[:2]
+    alb = (srgb_to_linear(base_srgb) if base_srgb is not None else np.ones((*size, 3))) \
+        * albedo_factor
+    m = metallic * metallic_factor if metallic is not None else np.full(size, metallic_factor)
+    r = roughness * roughness_factor if roughness is not None else np.full(size, roughness_factor)
+    return TextureMaterial(torch.as_tensor(uv, dtype=torch.float32),
+                           torch.as_tensor(np.asarray(alb), dtype=torch.float32),
+                           torch.as_tensor(m, dtype=torch.float32),
+                           torch.as_tensor(r, dtype=torch.float32))
+
+
 def make_asset(pos, idx, nrm, mat: UniformMaterial | TextureMaterial, up, source: str) -> Asset:
     """An :class:`Asset` from arrays: positions (V, 3), triangles (F, 3), normals (V, 3) (where
     any is missing or zero, area-weighted normals of the faces), the material, the up axis (3,)

@@ -15,11 +15,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
-from voxnero.asset.model import Asset, TextureMaterial, UniformMaterial, make_asset
+from voxnero.asset.model import Asset, make_asset, material_from_maps
 from voxnero.errors import DataError
-from voxnero.io.color import linear_to_srgb, srgb_to_linear
+from voxnero.io.color import linear_to_srgb
 from voxnero.io.images import read_image, write_png
 
 if TYPE_CHECKING:  # the writers take a baked mesh; baking (Open3D) is not needed to read
@@ -151,15 +150,7 @@ def load_obj(path: str | Path, up=(0.0, 0.0, 1.0)) -> Asset:
     kd = [float(x) for x in mtl.get("Kd", "1 1 1").split()[:3]]
     pm, pr = num("Pm", 1.0), num("Pr", 1.0)
     base, met, rough = tex("map_Kd"), tex("map_Pm"), tex("map_Pr")
-    if base is None and met is None and rough is None:
-        mat: UniformMaterial | TextureMaterial = UniformMaterial(tuple(kd), pm, pr)
-    else:
-        size = next(t for t in (base, met, rough) if t is not None).shape[:2]
-        alb = (srgb_to_linear(base[..., :3]) if base is not None else np.ones((*size, 3))) * kd
-        m = met[..., 0] * pm if met is not None else np.full(size, pm)
-        r = rough[..., 0] * pr if rough is not None else np.full(size, pr)
-        mat = TextureMaterial(torch.as_tensor(uv, dtype=torch.float32),
-                              torch.as_tensor(np.asarray(alb), dtype=torch.float32),
-                              torch.as_tensor(m, dtype=torch.float32),
-                              torch.as_tensor(r, dtype=torch.float32))
+    mat = material_from_maps(uv, None if base is None else base[..., :3],
+                             None if met is None else met[..., 0],
+                             None if rough is None else rough[..., 0], kd, pm, pr)
     return make_asset(pos, idx, nrm, mat, np.asarray(up, dtype=np.float64), str(path))
