@@ -2,7 +2,8 @@
 
 Defaults are the ``standard`` preset's scene (256² like the dev scenes, 96 train + 16 test
 views, 32 paths per pixel); the other presets in ``voxnero/configs/`` state what they change
-(``tiny``: 64², 24 + 8 views, the unit-test size, and the ``synth`` command's default preset). Overrides address nested keys, e.g.
+(``tiny``: 64², 24 + 8 views, the unit-test size, and the ``synth`` command's default
+preset). Overrides address nested keys, e.g.
 ``voxnero synth torus --preset tiny --out DIR torus.tilt_deg=45 env.seed=3 spp=64``.
 Roughness values are perceptual r (GGX α = r²); albedo is linear RGB.
 
