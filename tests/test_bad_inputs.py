@@ -43,7 +43,7 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     """Good inputs shared by the cases: a Blender scene, a mesh file, a relight asset and an
     env map, and a batch manifest path that does not exist (so a batch that accepted its
     settings stops at once)."""
-    from tests.relight.relight_assets import textured_sphere, write_assets
+    from tests.fixtures.assets import textured_sphere, write_assets
 
     root = tmp_path_factory.mktemp("good")
     make_blender(root / "scene", n={"train": 3, "test": 1})

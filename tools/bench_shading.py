@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
 
     from voxnero.device import default_device
-    from voxnero.render.brdf import brdf_eval, f0_from
+    from voxnero.render.brdf import brdf_eval
     from voxnero.render.envmap import (
         EnvMap,
         envmap_lookup,
@@ -58,6 +58,7 @@ def main(argv: list[str] | None = None) -> int:
         sh9_project,
     )
     from voxnero.render.estimator import shade_mc
+    from voxnero.render.microfacet import f0_from
     from voxnero.render.splitsum import build_table, get_table, specular_split_sum
 
     if a.threads > 0:

@@ -3,7 +3,8 @@
 Data flow, one sub-package per step:
     data/ (images + poses -> Scene) -> cameras/ (rays) -> fields/ (SDF + feature grids)
     -> render/ (BRDF, split-sum, env maps, Monte Carlo) -> shape/ (stage 1 training)
-    -> mesh/ (marching cubes, clean-up) -> material/ (stage 2) -> export/ (glTF, OBJ, EXR)
+    -> mesh/ (marching cubes, clean-up) -> material/ (stage 2) -> asset/ (glTF, OBJ, EXR:
+    writers and readers)
     -> eval/ (metrics) and viewer/.
 """
 

@@ -348,3 +348,26 @@ def save_resolved(out_dir: str | Path, sections: dict[str, Any], meta: dict[str,
     from voxnero.safety.folder import atomic_write_text
 
     return atomic_write_text(out_dir / "config.yaml", yaml.safe_dump(doc, sort_keys=False))
+
+
+def read_meta(run: str | Path) -> dict[str, Any]:
+    """The ``_meta`` section of a run folder's ``config.yaml`` (what :func:`save_resolved` wrote
+    with the resolved config: the ``scene``, the stage-1 ``mesh``, ...): the one reader of a run's
+    metadata.
+
+    Args:
+        run: the run folder.
+
+    Returns:
+        The section as a dict; empty when the folder has no ``config.yaml``, the file is not
+        valid YAML or it has no ``_meta``.
+    """
+    cfg = Path(run) / "config.yaml"
+    if not cfg.is_file():
+        return {}
+    try:
+        doc = yaml.safe_load(cfg.read_text()) or {}
+    except yaml.YAMLError:
+        return {}
+    meta = doc.get("_meta") if isinstance(doc, dict) else None
+    return meta if isinstance(meta, dict) else {}

@@ -26,7 +26,7 @@ def smooth_env(height: int = 32, seed: int = 0) -> torch.Tensor:
     Returns:
         (H, 2H, 3) linear radiance.
     """
-    from voxnero.render.envmap import pixel_dirs
+    from voxnero.render.latlong import pixel_dirs
 
     g = torch.Generator().manual_seed(seed)
     d = pixel_dirs(height, 2 * height)

@@ -18,7 +18,7 @@ from voxnero.errors import ConfigError, DataError
 from voxnero.io.color import linear_to_srgb
 from voxnero.io.exr import read_envmap
 from voxnero.material.surface import build_cache
-from voxnero.render.envmap import envmap_lookup
+from voxnero.render.latlong import envmap_lookup
 
 
 def _write_scene(root, n=4, size=32):

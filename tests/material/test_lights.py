@@ -1,20 +1,12 @@
-"""Env map of stage 2: initialisation from background pixels, upsampling, SH irradiance,
-indirect-light estimate."""
+"""Lights of stage 2: the env map's start from background pixels, the indirect-light estimate.
+(The env light itself, shared with stage 1, is tested in tests/fields/test_lights.py.)"""
 
 from __future__ import annotations
 
-import math
-
 import torch
 
-from voxnero.material.lights import (
-    EnvLight,
-    IndirectLight,
-    init_from_background,
-    irradiance_sh,
-    sh_basis,
-)
-from voxnero.render.envmap import envmap_lookup, pixel_dirs
+from voxnero.material.lights import IndirectLight, init_from_background
+from voxnero.render.latlong import envmap_lookup, pixel_dirs
 
 
 def test_init_from_background_recovers_pixel_values_and_fills_the_rest():
@@ -29,52 +21,6 @@ def test_init_from_background_recovers_pixel_values_and_fills_the_rest():
     mean = truth.reshape(-1, 3)[up].mean(0)
     low = d[:, 2] <= 0.1
     assert torch.allclose(img.reshape(-1, 3)[low], mean.expand(int(low.sum()), 3), atol=1e-5)
-
-
-def test_envlight_lookup_and_upsampling_keep_the_map():
-    H = 16
-    d = pixel_dirs(H, 2 * H)
-    base = 0.5 + 0.4 * d[..., :1] * torch.tensor([1.0, 0.5, 0.2]) + 0.3 * d[..., 2:3]
-    env = EnvLight(base)
-    assert torch.allclose(env.lookup(d), base, rtol=1e-4)
-    up = env.upsampled(32)
-    assert up.log_rad.shape == (32, 64, 3)
-    # a smooth map stays (nearly) the same function of direction, including across u = 0
-    g = torch.Generator().manual_seed(1)
-    q = torch.nn.functional.normalize(torch.randn(500, 3, generator=g), dim=-1)
-    assert torch.allclose(up.lookup(q), env.lookup(q), rtol=0.02, atol=0.01)
-    assert float(EnvLight(torch.ones(4, 8, 3)).smoothness().detach()) < 1e-12
-
-
-def test_sh_irradiance_of_a_linear_map_is_exact():
-    """L(d) = 1 + 0.5 d_z  ->  E(n) = pi + (2 pi / 3) 0.5 n_z (only orders 0 and 1)."""
-    H = 64
-    d = pixel_dirs(H, 2 * H)
-    img = (1 + 0.5 * d[..., 2:3]).expand(H, 2 * H, 3).contiguous()
-    c = irradiance_sh(img)
-    g = torch.Generator().manual_seed(2)
-    n = torch.nn.functional.normalize(torch.randn(100, 3, generator=g), dim=-1)
-    E = sh_basis(n) @ c
-    want = math.pi + 2 * math.pi / 3 * 0.5 * n[:, 2:3]
-    assert torch.allclose(E, want.expand(-1, 3), rtol=2e-3)
-
-
-def test_sh_irradiance_matches_brute_force_cosine_integral():
-    """Smooth map: order-2 SH irradiance vs a direct sum of L max(n.l, 0) dω over pixels (the
-    SH truncation error of a smooth map is small: within 3 %)."""
-    from voxnero.render.envmap import pixel_solid_angles
-
-    H = 48
-    d = pixel_dirs(H, 2 * H)
-    img = (1.0 + torch.exp(((d * torch.tensor([0.3, 0.4, 0.866])).sum(-1, keepdim=True) - 1)
-                           / 0.5)).expand(H, 2 * H, 3).contiguous()
-    om = pixel_solid_angles(H, 2 * H)
-    n = torch.nn.functional.normalize(torch.tensor([[0.0, 0, 1], [1.0, 0, 0], [0, -1.0, -1]]),
-                                      dim=-1)
-    brute = torch.einsum("hw,nhw->n", om * img[..., 0],
-                         (d[None] * n[:, None, None]).sum(-1).clamp_min(0))
-    E = (sh_basis(n) @ irradiance_sh(img))[:, 0]
-    assert torch.allclose(E, brute, rtol=0.03)
 
 
 def test_indirect_radiance_in_a_white_furnace():

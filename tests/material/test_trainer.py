@@ -11,7 +11,7 @@ from voxnero.material.field import GridMaterial, VertexMaterial
 from voxnero.material.render import Strategies, env_sampler, shade
 from voxnero.material.surface import build_cache
 from voxnero.material.trainer import SECONDARY_HIT_MIN, MaterialTrainer, decide_secondary
-from voxnero.render.envmap import envmap_lookup
+from voxnero.render.latlong import envmap_lookup
 
 TRUE = {"albedo": (0.9, 0.6, 0.3), "metallic": 1.0, "roughness": 0.25}
 
@@ -86,7 +86,7 @@ def test_checkpoint_resume_continues_identically(tmp_path):
     c.fit(ck, progress=False)
     assert c.step == 6 and c.env.height == 32
     assert torch.allclose(c.field.grid, a.field.grid, atol=1e-6)
-    assert torch.allclose(c.env.log_rad, a.env.log_rad, atol=1e-6)
+    assert torch.allclose(c.env.log_radiance, a.env.log_radiance, atol=1e-6)
 
 
 def test_jittered_training_pixels_average_to_the_box_filter():

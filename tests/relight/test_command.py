@@ -47,7 +47,7 @@ def test_relight_glb_writes_png_exr_and_config(sphere_asset_files, env_file, tmp
     cov = [v["coverage"] for v in rep["views"]]
     assert all(0.2 < c < 0.9 for c in cov)  # the asset is in the middle of the frame
     # the corner pixels see the environment: equal to the map along their rays
-    from voxnero.relight.asset import load_asset
+    from voxnero.asset.load import load_asset
     from voxnero.relight.cameras import orbit_cameras
 
     asset = load_asset(glb)

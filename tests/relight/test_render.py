@@ -10,11 +10,12 @@ import open3d as o3d
 import pytest
 import torch
 
+from voxnero.asset.load import load_asset
+from voxnero.asset.model import Asset, UniformMaterial
 from voxnero.eval.images import psnr
 from voxnero.io.color import linear_to_srgb
 from voxnero.io.exr import read_exr
 from voxnero.io.images import read_image
-from voxnero.relight.asset import Asset, UniformMaterial, load_asset
 from voxnero.relight.cameras import orbit_cameras, scene_cameras
 from voxnero.relight.render import RelightConfig, Relighter, load_env
 from voxnero.render.envmap import EnvMap

@@ -21,7 +21,7 @@ def _scene(root, n=4, size=32):
     r = 0.3) under a smooth env map; the mesh is written as mesh.ply."""
     import open3d as o3d
 
-    from voxnero.relight.asset import Asset, UniformMaterial
+    from voxnero.asset.model import Asset, UniformMaterial
     from voxnero.relight.render import RelightConfig, Relighter
     from voxnero.render.envmap import EnvMap
 

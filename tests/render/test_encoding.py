@@ -1,4 +1,4 @@
-"""Tests of voxnero/render/encoding.py: SH orthonormality, closed forms, IDE limits."""
+"""Tests of voxnero/render/encoding.py: IDE shape, limits and finiteness."""
 
 from __future__ import annotations
 
@@ -9,49 +9,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from voxnero.render.encoding import ide, sh_basis
-
-
-def _sphere_quadrature(n: int = 40):
-    """Gauss-Legendre in z x uniform phi: exact for polynomials of degree < 2n in z."""
-    z, w = np.polynomial.legendre.leggauss(n)
-    z, w = torch.from_numpy(z), torch.from_numpy(w)
-    P = 2 * n
-    phi = (torch.arange(P, dtype=torch.float64) + 0.5) * 2 * math.pi / P
-    Z, PH = torch.meshgrid(z, phi, indexing="ij")
-    s = torch.sqrt(1 - Z**2)
-    d = torch.stack([s * torch.sin(PH), s * torch.cos(PH), Z], -1).reshape(-1, 3)
-    wt = (w[:, None] * (2 * math.pi / P)).expand(n, P).reshape(-1)
-    return d, wt
-
-
-def test_sh_orthonormal_up_to_degree_16():
-    d, wt = _sphere_quadrature(40)
-    for dtype, tol in ((torch.float64, 1e-10), (torch.float32, 1e-4)):
-        Y = sh_basis(d.to(dtype), 16).double()
-        G = Y.T @ (Y * wt[:, None])
-        assert torch.allclose(G, torch.eye(289, dtype=torch.float64), atol=tol)
-
-
-def test_sh_low_order_closed_forms():
-    g = torch.Generator().manual_seed(0)
-    d = torch.nn.functional.normalize(torch.randn(50, 3, generator=g, dtype=torch.float64), dim=-1)
-    x, y, z = d.unbind(-1)
-    Y = sh_basis(d, 2)
-    c0 = 0.5 / math.sqrt(math.pi)
-    c1 = math.sqrt(3 / (4 * math.pi))
-    assert torch.allclose(Y[:, 0], torch.full_like(x, c0))
-    # degree 1 spans (y, z, x) up to sign
-    assert torch.allclose(Y[:, 1].abs(), c1 * y.abs())
-    assert torch.allclose(Y[:, 2], c1 * z)
-    assert torch.allclose(Y[:, 3].abs(), c1 * x.abs())
-    assert torch.allclose(Y[:, 6], math.sqrt(5 / (16 * math.pi)) * (3 * z * z - 1))
-    # addition theorem: sum_m Y_lm(d)^2 = (2l + 1) / (4 pi)
-    Y6 = sh_basis(d, 6)
-    for l in range(7):
-        band = Y6[:, l * l:(l + 1) ** 2]
-        assert torch.allclose((band**2).sum(-1), torch.full_like(x, (2 * l + 1) / (4 * math.pi)))
-
+from voxnero.render.encoding import ide
+from voxnero.render.sh import sh_basis
 
 SPECIAL = [(0.0, 0.0, 1.0), (0.0, 0.0, -1.0), (0.0, 0.0, 0.0), (1e-30, 0.0, 1.0), (1.0, 0.0, 0.0),
            (0.0, -1.0, 0.0), (3.0, 4.0, 0.0), (1e-7, -1e-7, -1.0)]

@@ -12,8 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from voxnero.render.brdf import brdf_eval
-from voxnero.render.envmap import EnvMap, envmap_lookup, pixel_dirs
+from voxnero.render.envmap import EnvMap
 from voxnero.render.estimator import shade_mc
+from voxnero.render.latlong import envmap_lookup, pixel_dirs
 from voxnero.render.splitsum import specular_split_sum, split_sum_lookup
 
 
@@ -217,7 +218,7 @@ DOTS = [(0.25, 0.35), (0.55, 0.45), (0.40, 0.62), (0.12, 0.55)]  # (u, v) of the
 
 
 def _dot_env(H=64, W=128):
-    from voxnero.render.envmap import uv_to_dir
+    from voxnero.render.latlong import uv_to_dir
 
     d = pixel_dirs(H, W, dtype=torch.float64)
     img = torch.full((H, W, 3), 0.02, dtype=torch.float64)

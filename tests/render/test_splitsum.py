@@ -9,7 +9,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from voxnero.render.brdf import ALPHA_MIN
+from voxnero.render.microfacet import ALPHA_MIN
 from voxnero.render.splitsum import (
     get_table,
     hammersley,

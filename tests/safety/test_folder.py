@@ -106,8 +106,8 @@ def test_failing_runs_leave_a_good_folder_byte_identical(tmp_path, capsys, monke
                                                          good_folder):
     """material / eval / relight failing after they started used to overwrite config.yaml (and
     relight the views it had rendered)."""
+    from tests.fixtures.assets import textured_sphere, write_assets
     from tests.fixtures.scenes import edit_json
-    from tests.relight.relight_assets import textured_sphere, write_assets
     from voxnero.io.exr import write_exr
     from voxnero.relight.render import Relighter
 

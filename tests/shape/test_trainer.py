@@ -34,7 +34,8 @@ def scene(tmp_path_factory):
     from voxnero.synth.config import MaterialConfig, SynthConfig
     from voxnero.synth.make import make_scene
 
-    cfg = SynthConfig()
+    cfg = SynthConfig(resolution=64, n_train=24, n_test=8, spp=9, chunk=1 << 19)  # 'tiny'
+    cfg.env.height = 128
     cfg.env.source = "constant"
     cfg.sphere.material = MaterialConfig([0.7, 0.3, 0.2], 0.0, 0.5)
     root = make_scene("sphere", tmp_path_factory.mktemp("tiny_sphere"), cfg, progress=False)

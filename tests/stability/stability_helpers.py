@@ -65,7 +65,7 @@ def spot_env(height: int, direction: torch.Tensor, base: float = 0.01, peak: flo
              width_deg: float = 6.0) -> torch.Tensor:
     """``(H, 2H, 3)`` env map: constant ``base`` plus a Gaussian spot of ``peak`` around the unit
     world ``direction`` (angular sigma ``width_deg``), in the project's env mapping."""
-    from voxnero.render.envmap import pixel_dirs
+    from voxnero.render.latlong import pixel_dirs
 
     d = pixel_dirs(height, 2 * height)
     cos = (d * direction.to(d.dtype)).sum(-1, keepdim=True).clamp(-1, 1)

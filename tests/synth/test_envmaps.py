@@ -10,7 +10,7 @@ import torch
 
 from voxnero.errors import ConfigError, DataError
 from voxnero.io.exr import write_exr
-from voxnero.render.envmap import dir_to_uv, pixel_dirs
+from voxnero.render.latlong import dir_to_uv, pixel_dirs
 from voxnero.synth.envmaps import constant_envmap, load_envmap, procedural_envmap
 
 

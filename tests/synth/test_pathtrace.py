@@ -17,7 +17,8 @@ import torch
 
 from voxnero.cameras.rays import pixel_rays, pixel_samples
 from voxnero.render.brdf import brdf_eval
-from voxnero.render.envmap import EnvMap, pixel_dirs
+from voxnero.render.envmap import EnvMap
+from voxnero.render.latlong import pixel_dirs
 from voxnero.synth.camera_rig import make_cameras
 from voxnero.synth.envmaps import constant_envmap
 from voxnero.synth.materials import Material, MaterialTable

@@ -8,7 +8,7 @@ import shutil
 
 import open3d as o3d
 
-from tests.relight.relight_assets import textured_sphere
+from tests.fixtures.assets import textured_sphere
 from voxnero.cli import build_parser
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voxnero.relight.asset import load_asset
+from voxnero.asset.load import load_asset
 from voxnero.relight.cameras import orbit_cameras
 from voxnero.viewer.geometry import (
     CHANNELS,

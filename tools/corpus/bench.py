@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 import statistics
 import sys
@@ -39,6 +38,7 @@ if str(REPO) not in sys.path:
 
 from tools import tradeoff  # noqa: E402
 from tools.corpus import shapes  # noqa: E402
+from voxnero.batch.process import read_json  # noqa: E402
 
 COLUMNS = ["scene", "preset", "stage", "status", "time_s", "shape_s", "material_s", "chamfer",
            "chamfer_px", "normal_deg", "genus", "genus_true", "components", "psnr_object",
@@ -63,12 +63,6 @@ def mesh_topology(path: Path) -> tuple[int | None, int]:
     return shapes.genus(inv.reshape(-1, 3), len(used)), len(counts)
 
 
-def _json(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
-
 
 def run_dirs(out: Path, scene: str, preset: str) -> tuple[Path, Path]:
     """The stage-1 and stage-2 folders ``tools/tradeoff/`` made for (scene, preset)."""
@@ -89,10 +83,10 @@ def collect(corpus: Path, out: Path) -> list[dict]:
         if r["stage"] != "both" and (r["scene"], r["preset"]) in both:
             continue  # the same stage-1 run, measured with stage 2 too
         scene = Path(r["scene_path"]) if r.get("scene_path") else corpus / r["scene"]
-        info = _json(scene / "scene_info.json")
+        info = read_json(scene / "scene_info.json")
         px = float(info.get("pixel_size", "nan"))
         sdir, mdir = run_dirs(out, r["scene"], r["preset"])
-        metrics = _json(mdir / "eval" / "metrics.json")
+        metrics = read_json(mdir / "eval" / "metrics.json")
         relight = [v.get("psnr", math.nan) for v in (metrics.get("relight") or {}).values()]
         genus, comps = (mesh_topology(sdir / "mesh.ply") if (sdir / "mesh.ply").is_file()
                         else (None, 0))

@@ -33,7 +33,7 @@ from tools.tradeoff.report import (
     write_csv,
     write_outputs,
 )
-from voxnero.batch.process import ChildResult, kill_children, run_timed
+from voxnero.batch.process import ChildResult, kill_children, read_json, run_timed
 from voxnero.batch.tasks import scores
 
 __all__ = ["ChildResult", "Runner", "Task", "child_env", "kill_children", "plan", "run_child",
@@ -70,12 +70,6 @@ def _slug(text: str) -> str:
     s = re.sub(r"[^A-Za-z0-9]+", "_", text).strip("_")[:40]
     return f"{s}-{h}"
 
-
-def _json(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
 
 
 def _eval_metrics(metrics: dict) -> dict[str, float]:
@@ -121,7 +115,7 @@ class Runner:
         cfg = " ".join((point.preset, *point.for_stage("shape")))
         d = self.out / "runs" / scene.name / f"shape-{_slug(cfg)}" / f"r{repeat}"
         with self._lock(str(d)):
-            done = _json(d / "tradeoff_child.json")
+            done = read_json(d / "tradeoff_child.json")
             if done.get("rc") == 0 and (d / "mesh.ply").is_file():
                 return d, done
             shutil.rmtree(d, ignore_errors=True)  # never resume half a run: it would skew time
@@ -130,7 +124,7 @@ class Runner:
                            *point.for_stage("shape"))
             res = run_child(cmd, d.parent / f"r{repeat}.shape.log", self.timeout)
             info = {"rc": res.rc, "wall_s": res.wall_s, "peak_rss_mib": res.peak_rss_mib,
-                    "train_s": _json(d / "shape.json").get("train_time_s", float("nan"))}
+                    "train_s": read_json(d / "shape.json").get("train_time_s", float("nan"))}
             if d.is_dir():
                 (d / "tradeoff_child.json").write_text(json.dumps(info))
             return d, info
@@ -143,7 +137,7 @@ class Runner:
                                      str(target / "eval")), target / "eval.log", self.timeout)
             if res.rc != 0:
                 raise RuntimeError(f"voxnero eval failed (exit {res.rc}); see {target}/eval.log")
-        return _eval_metrics(_json(metrics))
+        return _eval_metrics(read_json(metrics))
 
     def run(self, task: Task) -> dict:
         """Run one task; returns its CSV row (``status`` "ok" or "failed: ...")."""
@@ -174,7 +168,7 @@ class Runner:
                 if m.rc != 0:
                     raise RuntimeError(f"voxnero material failed (exit {m.rc}); see "
                                        f"{mdir}.material.log")
-                mj = _json(mdir / "materials.json")
+                mj = read_json(mdir / "materials.json")
                 row.update(material_s=m.wall_s,
                            material_train_s=(mj.get("times") or {}).get("train_s", ""))
                 timed_rss.append(m.peak_rss_mib)

@@ -68,7 +68,9 @@ def kill_children() -> None:
                 pass
 
 
-def _read_json(path: Path) -> dict:
+def read_json(path: Path) -> dict:
+    """A JSON file's object, or {} when it is missing or unreadable (a child that died before
+    writing it): the one tolerant reader of run files (batch, tools/tradeoff, tools/corpus)."""
     try:
         return json.loads(path.read_text())
     except (OSError, ValueError):
@@ -114,7 +116,7 @@ def run_timed(cmd: Sequence[str], log: Path, timeout: float | None = None,
         finally:
             with _LIVE_LOCK:
                 _LIVE.discard(proc.pid)
-    info = _read_json(res)
+    info = read_json(res)
     if not info:
         return ChildResult(proc.returncode or 1, time.perf_counter() - t0, float("nan"))
     return ChildResult(int(info["rc"]), float(info["wall_s"]), float(info["peak_rss_mib"]))

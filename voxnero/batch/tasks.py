@@ -26,7 +26,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from voxnero.batch.process import wait_measured
+from voxnero.batch.process import read_json, wait_measured
 
 RESULT = "result.json"
 LOG = "batch.log"
@@ -71,12 +71,8 @@ class SceneJob:
 
 
 def read_result(out: str | Path) -> dict[str, Any] | None:
-    """The scene's ``result.json`` row, or None if absent or unreadable."""
-    p = Path(out) / RESULT
-    try:
-        return json.loads(p.read_text())
-    except (OSError, ValueError):
-        return None
+    """The scene's ``result.json`` row, or None if absent, unreadable or empty."""
+    return read_json(Path(out) / RESULT) or None
 
 
 def is_finished(out: str | Path) -> bool:
@@ -118,12 +114,6 @@ def stage_commands(job: SceneJob) -> list[dict[str, Any]]:
     return stages
 
 
-def _json(path: Path) -> dict[str, Any]:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
-
 
 def scores(metrics: dict[str, Any]) -> dict[str, Any]:
     """Chamfer (``chamfer.cd``), mean normal error in degrees (``normals.mean_deg``) and
@@ -143,8 +133,8 @@ def collect_metrics(out: str | Path) -> dict[str, Any]:
     Missing files give None values (no ground truth, or stage 1 only).
     """
     out = Path(out)
-    ev = scores(_json(out / "eval" / "metrics.json"))
-    mat = scores(_json(out / "material" / "metrics.json"))
+    ev = scores(read_json(out / "eval" / "metrics.json"))
+    mat = scores(read_json(out / "material" / "metrics.json"))
 
     def path_or_none(p: Path) -> str | None:
         return str(p) if p.exists() else None
@@ -241,7 +231,7 @@ def run_scene(job: SceneJob) -> dict[str, Any]:
                                     env=_child_env(job), pass_fds=(lock.fd,), cwd=str(out))
             rc, peak_mb = wait_measured(proc)
         dt = time.perf_counter() - t0
-        done = _json(status).get("stages", [])
+        done = read_json(status).get("stages", [])
         if rc < 0 or rc == 130:
             how = f"signal {-rc}" if rc < 0 else "an interrupt"
             raise StageKilled(f"scene {job.name}: stage process stopped by {how} after {dt:.0f} s "

@@ -124,7 +124,7 @@ def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]
     """Image and material metrics of a stage-2 run, by :func:`voxnero.material.evaluate`.
 
     The exported asset is what is scored: ``model.glb`` (mesh + baked textures, read by
-    :func:`voxnero.relight.asset.load_asset`) and ``envmap.exr``, rendered at ``cfg.material_views``
+    :func:`voxnero.asset.load.load_asset`) and ``envmap.exr``, rendered at ``cfg.material_views``
     test views with ``cfg.material_spp`` samples; indirect light / visibility casts as the run
     decided (``decisions`` in ``materials.json``).
 
@@ -145,13 +145,13 @@ def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]
 
     import torch
 
+    from voxnero.asset.load import load_asset
     from voxnero.data.detect import load_scene
     from voxnero.io.color import linear_to_srgb
     from voxnero.io.exr import read_envmap
     from voxnero.material.evaluate import evaluate_scene, render_view
     from voxnero.material.render import Strategies
     from voxnero.material.surface import Geometry
-    from voxnero.relight.asset import load_asset
 
     asset = load_asset(run / "model.glb")
     norm = load_scene(scene_path, splits=("test",)).norm  # the frame evaluate_scene uses
@@ -223,7 +223,7 @@ def evaluate(mesh_path: Path, scene_path: Path, cfg, out: Path,
     cams, depth, masks = sp.cameras[idx], sp.depth[idx], sp.masks[idx]
     names = [sp.names[i] for i in idx]
     if mesh_path.suffix.lower() == ".glb":
-        from voxnero.relight.asset import load_asset
+        from voxnero.asset.load import load_asset
 
         mesh = load_asset(mesh_path).legacy_mesh(scene.norm)
     else:

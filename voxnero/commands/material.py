@@ -46,8 +46,7 @@ def locate(target: str | Path, scene: str | None) -> tuple[Path, Path]:
     Raises:
         DataError / ConfigError: no mesh, or no scene named anywhere.
     """
-    import yaml
-
+    from voxnero.config import read_meta
     from voxnero.errors import ConfigError, DataError
 
     p = Path(target)
@@ -63,14 +62,9 @@ def locate(target: str | Path, scene: str | None) -> tuple[Path, Path]:
                         fix="pass a stage-1 run folder or a .ply/.obj mesh (input frame)")
     if scene:
         return mesh, Path(scene)
-    cfg = mesh.parent / "config.yaml"
-    if cfg.is_file():
-        try:
-            meta = (yaml.safe_load(cfg.read_text()) or {}).get("_meta", {}) or {}
-        except yaml.YAMLError:
-            meta = {}
-        if meta.get("scene"):
-            return mesh, Path(meta["scene"])
+    meta = read_meta(mesh.parent)
+    if meta.get("scene"):
+        return mesh, Path(meta["scene"])
     raise ConfigError(f"no scene given for {p}", fix="pass --scene SCENE_FOLDER (the photos the "
                       "mesh was made from)")
 
@@ -99,20 +93,20 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
     import numpy as np
     import torch
 
+    from voxnero.asset.envmap import write_envmap
+    from voxnero.asset.gltf import write_glb
+    from voxnero.asset.obj import write_obj
+    from voxnero.asset.textures import bake_textures
     from voxnero.config import save_resolved
     from voxnero.data.detect import load_scene
     from voxnero.eval.images import psnr
     from voxnero.eval.report import json_safe
-    from voxnero.export.envmap import write_envmap
-    from voxnero.export.gltf import write_glb
-    from voxnero.export.obj import write_obj
-    from voxnero.export.summary import vertex_areas, write_summary
-    from voxnero.export.textures import bake_textures
     from voxnero.io.color import linear_to_srgb
     from voxnero.io.exr import read_envmap
     from voxnero.material.evaluate import evaluate_scene
     from voxnero.material.field import vertex_materials
     from voxnero.material.render import Strategies
+    from voxnero.material.summary import vertex_areas, write_summary
     from voxnero.material.surface import Geometry, build_cache
     from voxnero.material.trainer import MaterialTrainer
     from voxnero.mesh.io import load_mesh
@@ -168,7 +162,7 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
 
     # ---- checks: the exported env map reproduces the training background
     env_back = torch.from_numpy(read_envmap(out / "envmap.exr")).float()
-    from voxnero.render.envmap import envmap_lookup
+    from voxnero.render.latlong import envmap_lookup
 
     bg_psnr = float("nan")
     if cache.bg_dirs.shape[0]:

@@ -78,9 +78,9 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
 
+    from voxnero.asset.load import load_asset
     from voxnero.config import resolve
     from voxnero.device import default_device
-    from voxnero.relight.asset import load_asset
     from voxnero.relight.cameras import scaled
     from voxnero.relight.render import RelightConfig, load_env
     from voxnero.safety.folder import RunFolder

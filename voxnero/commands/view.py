@@ -55,8 +55,8 @@ def _channels(spec: str) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from voxnero.asset.load import load_asset
     from voxnero.errors import ConfigError
-    from voxnero.relight.asset import load_asset
     from voxnero.viewer.geometry import (
         Drawable,
         asset_mesh,

@@ -1,15 +1,17 @@
-"""Stage-1 light models: an explicit learnable env map (direct light), an indirect-light net and
-an occlusion net.
+"""Learned light models: the explicit learnable env map (direct light, both stages), and stage 1's
+indirect-light net and occlusion net.
 
 Light arriving along a reflected direction ``r`` at a surface point ``x`` is, as in NeRO,
 ``L = (1 − s)·L_direct(r) + s·L_indirect(x, r)`` with occlusion probability ``s(x, r)``.
 
 * :class:`EnvLight` — the direct light is one equirectangular map of log radiance (+Z up, the
-  mapping of :mod:`voxnero.render.envmap`), used three ways: (1) the background of every ray
-  (a distant environment: the background pixel *is* the light along the ray), (2) specular
+  mapping of :mod:`voxnero.render.latlong`), used by stage 1 three ways: (1) the background of
+  every ray (a distant environment: the background pixel *is* the light along the ray), (2) specular
   reflections, pre-filtered by roughness through a mip chain, (3) diffuse light from its
   order-2 SH projection (cosine convolution). The DESIGN probe measured this explicit map better
-  than a free colour net; it is also directly exportable.
+  than a free colour net; it is also directly exportable. Stage 2 starts one from the photos'
+  background pixels (:func:`voxnero.material.lights.init_from_background`), with a wider clamp,
+  and looks it up and samples it in its Monte Carlo estimator.
 * :class:`IndirectNet` — radiance that a reflected ray picks up from the object itself, a small
   MLP on grid features at ``x`` and the direction ``r`` (linear radiance ≥ 0). (Stage 2's
   analytic counterpart is :class:`voxnero.material.lights.IndirectLight`.)
@@ -25,38 +27,62 @@ import torch
 from torch import nn
 
 from voxnero.fields.heads import mlp
-from voxnero.render import envmap
+from voxnero.render import latlong, mip, sh
 
 
 class EnvLight(nn.Module):
-    """Learnable equirectangular env map of log radiance ``(H, 2H, 3)``.
+    """Learnable equirectangular env map of log radiance ``(H, 2H, 3)``: the direct light of both
+    stages (stage 1: background, mip-filtered specular light, SH diffuse light; stage 2: the
+    map its Monte Carlo estimator looks up and samples, exported as ``envmap.exr``).
 
     Args:
-        height: H.
+        height: H (the map starts uniform at ``init``; :meth:`from_image` starts from a map).
         init: initial linear radiance (uniform).
-        max_log: upper clamp of the log radiance (numerical safety).
+        max_log: upper clamp of the log radiance (numerical safety; stage 1 uses
+            ``light.max_log_radiance`` = 4, stage 2 ``material.lights.LOG_MAX`` = 8).
         levels: mip levels of the roughness pre-filter chain (None: down to 2 rows, so that
-            roughness 1 reaches its level, see ``envmap.roughness_to_level``).
+            roughness 1 reaches its level, see ``mip.roughness_to_level``).
+        min_log: lower clamp of the log radiance (None: none, stage 1; stage 2 uses
+            ``material.lights.LOG_MIN`` = -12).
     """
 
     def __init__(self, height: int = 64, init: float = 0.5, max_log: float = 4.0,
-                 levels: int | None = None):
+                 levels: int | None = None, min_log: float | None = None):
         super().__init__()
         self.log_radiance = nn.Parameter(torch.full((height, 2 * height, 3), math.log(init)))
         self.max_log = max_log
+        self.min_log = min_log
         self.levels = levels
         self._chain: list[torch.Tensor] | None = None
         self._sh: torch.Tensor | None = None
 
+    @classmethod
+    def from_image(cls, image: torch.Tensor, max_log: float, min_log: float | None = None,
+                   levels: int | None = None) -> EnvLight:
+        """An env light starting from a linear map.
+
+        Args:
+            image: ``(H, 2H, 3)`` initial linear radiance (values below 1e-4 start at 1e-4).
+            max_log, min_log, levels: as for the constructor.
+        """
+        env = cls(int(image.shape[0]), 1.0, max_log, levels, min_log)
+        env.log_radiance = nn.Parameter(torch.log(image.float().clamp_min(1e-4)))
+        return env
+
+    @property
+    def height(self) -> int:
+        """H of the ``(H, 2H, 3)`` map."""
+        return int(self.log_radiance.shape[0])
+
     def image(self) -> torch.Tensor:
-        """The env map as linear radiance ``(H, W, 3)``."""
-        return torch.exp(self.log_radiance.clamp(max=self.max_log))
+        """The env map as linear radiance ``(H, W, 3)`` (differentiable)."""
+        return torch.exp(self.log_radiance.clamp(self.min_log, self.max_log))
 
     def prepare(self) -> None:
         """Build the mip chain and SH coefficients of the current map (once per step)."""
         img = self.image()
-        self._chain = envmap.mip_chain(img, self.levels)
-        self._sh = envmap.sh9_project(img)
+        self._chain = mip.mip_chain(img, self.levels)
+        self._sh = sh.sh9_project(img)
 
     def release(self) -> None:
         """Drop the per-step caches (so a stale graph is never reused)."""
@@ -65,21 +91,35 @@ class EnvLight(nn.Module):
 
     def background(self, d: torch.Tensor) -> torch.Tensor:
         """Radiance ``(N, 3)`` seen along unit directions ``d (N, 3)`` (finest level)."""
-        return envmap.envmap_lookup(self.image() if self._chain is None else self._chain[0], d)
+        return latlong.envmap_lookup(self.image() if self._chain is None else self._chain[0], d)
 
     def specular(self, d: torch.Tensor, roughness: torch.Tensor) -> torch.Tensor:
         """Pre-filtered radiance ``(N, 3)`` along ``d (N, 3)`` for perceptual roughness
         ``(N, 1)``."""
         if self._chain is None:
             self.prepare()
-        return envmap.lookup_rough(self._chain, d, roughness)
+        return mip.lookup_rough(self._chain, d, roughness)
 
     def diffuse(self, n: torch.Tensor) -> torch.Tensor:
         """Cosine-weighted radiance ``E(n)/π`` ``(N, 3)`` for unit normals ``n (N, 3)``; a
         Lambertian surface of albedo a reflects ``a·E/π``."""
         if self._sh is None:
             self.prepare()
-        return envmap.sh9_irradiance(self._sh, n) / math.pi
+        return sh.sh9_irradiance(self._sh, n) / math.pi
+
+    def upsampled(self, height: int) -> EnvLight:
+        """A new env light at ``height`` with the same clamps: the log map looked up (bilinear,
+        same convention) at the new pixel-centre directions."""
+        d = latlong.pixel_dirs(height, 2 * height, device=self.log_radiance.device)
+        img = torch.exp(latlong.envmap_lookup(self.log_radiance.detach(), d))
+        return EnvLight.from_image(img, self.max_log, self.min_log, self.levels)
+
+    def smoothness(self) -> torch.Tensor:
+        """Mean squared difference of neighbouring log-radiance pixels (periodic in u)."""
+        lr = self.log_radiance
+        dx = lr - torch.roll(lr, 1, dims=1)
+        dy = lr[1:] - lr[:-1]
+        return (dx**2).mean() + (dy**2).mean()
 
 
 class IndirectNet(nn.Module):

@@ -33,7 +33,7 @@ import torch
 from voxnero.material.lights import IndirectLight
 from voxnero.material.render import Strategies, env_sampler, rotated_pattern, shade
 from voxnero.material.surface import Geometry
-from voxnero.render.envmap import envmap_lookup
+from voxnero.render.latlong import envmap_lookup
 
 
 def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: int,

@@ -1,8 +1,9 @@
-"""Lights of stage 2: the explicit learnable HDR env map and a cheap indirect-light estimate.
+"""Lights of stage 2: the start and clamp of the learnable HDR env map, and a cheap indirect-light
+estimate.
 
-Direct light: an equirectangular map of log radiance ``(H, W, 3)``, W = 2H, in the project's
-env-map convention (docs/ARCHITECTURE.md: u = atan2(dx, dy) / 2π, v = arccos(dz) / π,
-x = u·W − 0.5, y = v·(H − 1), +Z up). ``image()`` is the linear HDR map that is exported as is.
+Direct light: :class:`voxnero.fields.lights.EnvLight` (the one learnable env map of both stages),
+started from the photos' background pixels (:func:`init_from_background`) and clamped to
+[``LOG_MIN``, ``LOG_MAX``]; its ``image()`` is the linear HDR map that is exported as is.
 
 Indirect light (radiance arriving along a secondary ray that hits the object): the outgoing
 radiance of the hit point toward the ray's origin, estimated from the current material with a
@@ -10,9 +11,9 @@ low-order light and no further bounce:
 
     L_o(y, w) = (1 − m) · (1 − E_d) · albedo · E(n_y) / π + L_blur(reflect(w, n_y)) · (F0 · A + B)
 
-with E the irradiance from the map's order-2 spherical-harmonic projection (Ramamoorthi and
-Hanrahan 2001), L_blur the map average-pooled to ``8 × 16`` and (A, B) the split-sum terms
-(``voxnero.render.splitsum``).
+with E the irradiance from the map's order-2 spherical-harmonic projection
+(``voxnero.render.sh``, Ramamoorthi and Hanrahan 2001), L_blur the map average-pooled to
+``8 × 16`` and (A, B) the split-sum terms (``voxnero.render.splitsum``).
 """
 
 from __future__ import annotations
@@ -21,14 +22,17 @@ import math
 
 import torch
 import torch.nn.functional as F
-from torch import Tensor, nn
+from torch import Tensor
 
-from voxnero.render.brdf import diffuse_weight, f0_from
-from voxnero.render.envmap import envmap_lookup, pixel_dirs, pixel_solid_angles
+from voxnero.render.brdf import diffuse_weight
+from voxnero.render.latlong import dir_to_uv, envmap_lookup
+from voxnero.render.microfacet import f0_from
+from voxnero.render.sh import sh9_irradiance, sh9_project
 from voxnero.render.splitsum import specular_split_sum
 
 LOG_MIN, LOG_MAX = -12.0, 8.0
-"""Bounds of the log radiance (linear 6e-6 .. 3e3)."""
+"""Stage 2's clamp of the env light's log radiance, ``EnvLight(min_log=LOG_MIN, max_log=LOG_MAX)``
+(linear 6e-6 .. 3e3; stage 1 clamps only above, at its ``light.max_log_radiance``)."""
 
 
 def init_from_background(dirs: Tensor, rgb: Tensor, height: int) -> Tensor:
@@ -46,8 +50,6 @@ def init_from_background(dirs: Tensor, rgb: Tensor, height: int) -> Tensor:
     out = torch.zeros(H * W, 3)
     cnt = torch.zeros(H * W)
     if dirs.shape[0]:
-        from voxnero.render.envmap import dir_to_uv
-
         uv = dir_to_uv(dirs.double())
         x = torch.floor(uv[:, 0] * W).long() % W
         y = torch.round(uv[:, 1] * (H - 1)).long().clamp(0, H - 1)
@@ -58,71 +60,6 @@ def init_from_background(dirs: Tensor, rgb: Tensor, height: int) -> Tensor:
     mean = out[seen].sum(0) / cnt[seen].sum() if seen.any() else torch.full((3,), 0.5)
     out = torch.where(seen[:, None], out / cnt.clamp_min(1)[:, None], mean)
     return out.view(H, W, 3)
-
-
-class EnvLight(nn.Module):
-    """Learnable equirectangular HDR env map, parameterised by its log radiance."""
-
-    def __init__(self, image: Tensor):
-        """Args:
-            image: (H, W, 3) initial linear radiance (W = 2H).
-        """
-        super().__init__()
-        self.log_rad = nn.Parameter(torch.log(image.float().clamp_min(1e-4)))
-
-    @property
-    def height(self) -> int:
-        return int(self.log_rad.shape[0])
-
-    def image(self) -> Tensor:
-        """(H, W, 3) linear HDR map (differentiable)."""
-        return torch.exp(self.log_rad.clamp(LOG_MIN, LOG_MAX))
-
-    def lookup(self, d: Tensor) -> Tensor:
-        """Bilinear radiance along unit directions d (..., 3) -> (..., 3)."""
-        return envmap_lookup(self.image(), d)
-
-    def upsampled(self, height: int) -> EnvLight:
-        """A new EnvLight at ``height``: the log map looked up (bilinear, same convention) at the
-        new pixel-centre directions."""
-        d = pixel_dirs(height, 2 * height, device=self.log_rad.device)
-        return EnvLight(torch.exp(envmap_lookup(self.log_rad.detach(), d)))
-
-    def smoothness(self) -> Tensor:
-        """Mean squared difference of neighbouring log-radiance pixels (periodic in u)."""
-        lr = self.log_rad
-        dx = lr - torch.roll(lr, 1, dims=1)
-        dy = lr[1:] - lr[:-1]
-        return (dx**2).mean() + (dy**2).mean()
-
-
-def sh_basis(d: Tensor) -> Tensor:
-    """Real spherical harmonics up to order 2 at unit directions: (..., 3) -> (..., 9)."""
-    x, y, z = d.unbind(-1)
-    return torch.stack([
-        torch.full_like(x, 0.282095),
-        0.488603 * y, 0.488603 * z, 0.488603 * x,
-        1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3 * z * z - 1),
-        1.092548 * x * z, 0.546274 * (x * x - y * y)], -1)
-
-
-def irradiance_sh(image: Tensor) -> Tensor:
-    """Order-2 SH coefficients of the irradiance of an env map (cosine lobe convolved).
-
-    Args:
-        image: (H, W, 3) linear radiance.
-
-    Returns:
-        (9, 3) coefficients c such that E(n) = sh_basis(n) @ c (irradiance, W/m² analogue).
-    """
-    H, W = image.shape[:2]
-    d = pixel_dirs(H, W, device=image.device)
-    w = pixel_solid_angles(H, W, device=image.device)
-    Y = sh_basis(d) * w[..., None]
-    L = torch.einsum("hwk,hwc->kc", Y, image)
-    A = torch.tensor([math.pi] + [2 * math.pi / 3] * 3 + [math.pi / 4] * 5,
-                     device=image.device, dtype=image.dtype)
-    return L * A[:, None]
 
 
 class IndirectLight:
@@ -138,7 +75,7 @@ class IndirectLight:
             env_image: (H, W, 3) current linear env map.
             blur_height: height of the average-pooled map used for the specular part.
         """
-        self.sh = irradiance_sh(env_image)
+        self.sh = sh9_project(env_image)
         H = env_image.shape[0]
         k = max(1, H // blur_height)
         img = env_image.permute(2, 0, 1)[None]
@@ -155,7 +92,7 @@ class IndirectLight:
         Returns:
             (N, 3) linear radiance (>= 0).
         """
-        E = (sh_basis(n) @ self.sh).clamp_min(0.0)
+        E = sh9_irradiance(self.sh, n)
         nw = (n * w).sum(-1, keepdim=True)
         r = 2 * nw * n - w
         spec = specular_split_sum(f0_from(albedo, metallic), nw.clamp_min(0.0), roughness,

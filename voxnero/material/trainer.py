@@ -26,13 +26,14 @@ from typing import Any
 import torch
 
 from voxnero.errors import RunFolderError
+from voxnero.fields.lights import EnvLight
 from voxnero.io.color import linear_to_srgb
 from voxnero.material.config import MaterialConfig
 from voxnero.material.field import make_field
-from voxnero.material.lights import EnvLight, IndirectLight, init_from_background
+from voxnero.material.lights import LOG_MAX, LOG_MIN, IndirectLight, init_from_background
 from voxnero.material.render import Strategies, env_sampler, shade
 from voxnero.material.surface import Geometry, SurfaceCache
-from voxnero.render.envmap import envmap_lookup
+from voxnero.render.latlong import envmap_lookup
 from voxnero.render.sampling import sample_cosine
 from voxnero.safety import fingerprint
 from voxnero.safety.guard import NonFiniteGuard, check_finite, nonfinite
@@ -121,7 +122,7 @@ class MaterialTrainer:
         if env_init is None:
             env_init = init_from_background(cache.bg_dirs.cpu(), cache.bg_rgb.cpu(),
                                             self.heights[0])
-        self.env = EnvLight(env_init.to(self.device))
+        self.env = EnvLight.from_image(env_init.to(self.device), LOG_MAX, LOG_MIN)
         self.spp = Strategies(cfg.render.spp_cos, cfg.render.spp_ggx, cfg.render.spp_env)
         vis = cfg.render.visibility
         frac = needs_indirect(geom, cache, generator=self.gen) if vis not in ("off", False) \
@@ -214,7 +215,7 @@ class MaterialTrainer:
         if cfg.bg_batch and c.bg_dirs.shape[0]:
             j = torch.randint(0, c.bg_dirs.shape[0], (cfg.bg_batch,),
                               generator=self.gen).to(self.device)
-            bg = self.env.lookup(c.bg_dirs[j])
+            bg = self.env.background(c.bg_dirs[j])
             terms["background"] = ((srgb_clipped(bg) - linear_to_srgb(c.bg_rgb[j])) ** 2).mean()
         fc = cfg.field
         if fc.smooth:
@@ -333,14 +334,14 @@ class MaterialTrainer:
             RunFolderError: the checkpoint's folder was removed during the run.
         """
         path = Path(path)
-        check_finite([*self.field.state_dict().items(), ("env", self.env.log_rad)], path,
+        check_finite([*self.field.state_dict().items(), ("env", self.env.log_radiance)], path,
                      NONFINITE_FIX)
         if not path.parent.is_dir():
             raise RunFolderError("the run folder was removed during the run", path=path.parent,
                                  fix="re-run the command (into this --out it starts over)")
         state = {"fingerprint": self.fingerprint(), "step": self.step, "level": self.level,
                  "field": self.field.state_dict(),
-                 "env": self.env.log_rad.detach().clone(),
+                 "env": self.env.log_radiance.detach().clone(),
                  "opt_mat": self.opt_mat.state_dict(), "opt_env": self.opt_env.state_dict(),
                  "gen": self.gen.get_state()}
         tmp = path.with_suffix(".tmp")
@@ -356,7 +357,7 @@ class MaterialTrainer:
                      "checking its mesh, scene and settings")
         self.step, self.level = int(state["step"]), int(state["level"])
         self.field.load_state_dict(state["field"])
-        self.env = EnvLight(torch.exp(state["env"]).to(self.device))
+        self.env = EnvLight.from_image(torch.exp(state["env"]).to(self.device), LOG_MAX, LOG_MIN)
         self._make_optimisers()
         self.opt_mat.load_state_dict(state["opt_mat"])
         self.opt_env.load_state_dict(state["opt_env"])

@@ -1,4 +1,4 @@
-"""Relight driver: path-trace an :class:`~voxnero.relight.asset.Asset` under an HDR env map.
+"""Relight driver: path-trace an :class:`~voxnero.asset.model.Asset` under an HDR env map.
 
 Per pixel, ``spp`` primary rays through stratified jittered positions in the pixel footprint
 (the box filter of the dev data) are cast against the mesh with Open3D
@@ -163,7 +163,7 @@ class Relighter:
     """Path tracer of one asset under one env map (see the module docstring).
 
     Args:
-        asset: the :class:`voxnero.relight.asset.Asset` (input frame).
+        asset: the :class:`voxnero.asset.model.Asset` (input frame).
         env: :class:`voxnero.render.envmap.EnvMap` already oriented (up, yaw) for the world.
         cfg: :class:`RelightConfig`.
         device: torch device of the shading (ray casts run in Open3D on the CPU).

@@ -1,16 +1,7 @@
-"""Equirectangular environment maps: direction <-> pixel mapping, lookup, filtering, sampling.
-
-Convention (docs/ARCHITECTURE.md, the dev scenes' Mitsuba mapping), +Z up, linear HDR
-``(H, W, 3)`` maps. For a unit world direction d pointing from the object to the environment::
-
-    u = atan2(dx, dy) / (2 pi)  wrapped to [0, 1),      v = arccos(dz) / pi
-    x = u * W - 0.5  (periodic),                        y = v * (H - 1)  (clamped)
-
-so pixel (column i, row j) is the radiance from theta = pi j / (H - 1), phi = 2 pi (i + 0.5) / W,
-d = (sin theta sin phi, sin theta cos phi, cos theta). Row 0 is the zenith, row H-1 the nadir.
-Pixel (i, j) "owns" the cell phi in [2 pi i / W, 2 pi (i + 1) / W], theta in
-[theta_j - dt/2, theta_j + dt/2] clipped to [0, pi] (dt = pi / (H - 1)); these cells tile the
-sphere and define the solid angles, the mip chain and the importance-sampling pdf.
+"""A fixed linear HDR environment map (``EnvMap``): lookups in any world orientation, luminance
+importance sampling, GGX-prefiltered radiance for the split-sum approximation and exact
+cosine-convolved irradiance. The mapping (+Z up, Mitsuba's equirectangular convention) is
+``latlong.py``; the filtering, ``mip.py``.
 """
 
 from __future__ import annotations
@@ -20,363 +11,24 @@ import math
 import torch
 from torch import Tensor
 
-
-def dir_to_theta_phi(d: Tensor) -> tuple[Tensor, Tensor]:
-    """Polar angle theta in [0, pi] from +Z and azimuth phi in [0, 2 pi) (phi = atan2(dx, dy)).
-
-    Safe at the poles and for zero-length vectors (finite values and gradients).
-
-    Args:
-        d: (..., 3) directions (need not be unit).
-
-    Returns:
-        theta (...,), phi (...,), radians.
-    """
-    dx, dy, dz = d.unbind(-1)
-    r2 = dx * dx + dy * dy
-    small = r2 < 1e-24
-    rho = torch.sqrt(torch.where(small, torch.ones_like(r2), r2))
-    rho = torch.where(small, torch.zeros_like(rho), rho)
-    theta = torch.atan2(rho, dz)
-    sx = torch.where(small, torch.zeros_like(dx), dx)
-    sy = torch.where(small, torch.ones_like(dy), dy)
-    phi = torch.atan2(sx, sy)
-    phi = torch.where(phi < 0, phi + 2.0 * math.pi, phi)
-    return theta, phi
-
-
-def dir_to_uv(d: Tensor) -> Tensor:
-    """Direction -> (u, v) in [0, 1)^2 x [0, 1], the Mitsuba equirectangular mapping.
-
-    Args:
-        d: (..., 3) world directions (normalised internally; +Z up).
-
-    Returns:
-        (..., 2) uv with u = atan2(dx, dy) / 2 pi wrapped to [0, 1), v = arccos(dz) / pi.
-    """
-    theta, phi = dir_to_theta_phi(d)
-    u = phi / (2.0 * math.pi)
-    u = u - torch.floor(u)
-    return torch.stack([u, theta / math.pi], dim=-1)
-
-
-def uv_to_dir(uv: Tensor) -> Tensor:
-    """(u, v) -> unit direction, inverse of ``dir_to_uv``.
-
-    Args:
-        uv: (..., 2).
-
-    Returns:
-        (..., 3) unit directions (sin t sin p, sin t cos p, cos t), t = pi v, p = 2 pi u.
-    """
-    theta = uv[..., 1] * math.pi
-    phi = uv[..., 0] * (2.0 * math.pi)
-    st = torch.sin(theta)
-    return torch.stack([st * torch.sin(phi), st * torch.cos(phi), torch.cos(theta)], dim=-1)
-
-
-def pixel_dirs(H: int, W: int, device=None, dtype=torch.float32) -> Tensor:
-    """Directions of the env-map pixel centres.
-
-    Args:
-        H, W: map size.
-
-    Returns:
-        (H, W, 3) unit directions; row j at theta = pi j / (H - 1), column i at
-        phi = 2 pi (i + 0.5) / W.
-    """
-    j = torch.arange(H, device=device, dtype=torch.float64)
-    i = torch.arange(W, device=device, dtype=torch.float64)
-    theta = (math.pi * j / (H - 1))[:, None].expand(H, W)
-    phi = (2.0 * math.pi * (i + 0.5) / W)[None, :].expand(H, W)
-    st = torch.sin(theta)
-    d = torch.stack([st * torch.sin(phi), st * torch.cos(phi), torch.cos(theta)], dim=-1)
-    return d.to(dtype)
-
-
-def _row_edges(H: int, dtype=torch.float64, device=None) -> Tensor:
-    """(H + 1,) theta edges of the row cells: 0, dt/2, 3dt/2, ..., pi."""
-    dt = math.pi / (H - 1)
-    e = (torch.arange(H + 1, dtype=dtype, device=device) - 0.5) * dt
-    return e.clamp(0.0, math.pi)
-
-
-def pixel_solid_angles(H: int, W: int, device=None, dtype=torch.float32) -> Tensor:
-    """Solid angle of each pixel's cell (rows centred on theta_j, pole rows half-height).
-
-    Args:
-        H, W: map size.
-
-    Returns:
-        (H, W) steradians; the sum is exactly 4 pi.
-    """
-    e = _row_edges(H, device=device)
-    band = torch.cos(e[:-1]) - torch.cos(e[1:])
-    omega = band * (2.0 * math.pi / W)
-    return omega[:, None].expand(H, W).to(dtype).contiguous()
-
-
-def envmap_lookup(img: Tensor, d: Tensor) -> Tensor:
-    """Bilinear lookup of an equirectangular map; differentiable w.r.t. ``img`` and ``d``.
-
-    Args:
-        img: (H, W, C) linear radiance (C = 3 usually).
-        d: (..., 3) world directions (normalised internally).
-
-    Returns:
-        (..., C) radiance, dtype of ``img``; the pixel value at a pixel-centre direction
-        (exactly, up to float64 rounding, except on the pole rows where all columns
-        share one direction).
-    """
-    # pixel coordinates in float64: float32 atan2 would blend ~1e-5 of the neighbour pixel
-    return _bilinear(img, dir_to_uv(d.to(torch.float64)))
-
-
-def _bilinear(img: Tensor, uv: Tensor) -> Tensor:
-    """Bilinear sample of (H, W, C) at (..., 2) uv (x periodic, y clamped) -> (..., C)."""
-    H, W = img.shape[0], img.shape[1]
-    x = uv[..., 0] * W - 0.5
-    y = (uv[..., 1] * (H - 1)).clamp(0.0, H - 1)
-    x0f = torch.floor(x)
-    wx = (x - x0f).unsqueeze(-1).to(img.dtype)
-    x0 = x0f.long() % W
-    x1 = (x0 + 1) % W
-    y0 = torch.floor(y).clamp(max=max(H - 2, 0))
-    wy = (y - y0).unsqueeze(-1).to(img.dtype)
-    y0 = y0.long()
-    y1 = (y0 + 1).clamp(max=H - 1)
-    flat = img.reshape(H * W, -1)
-
-    def g(yy: Tensor, xx: Tensor) -> Tensor:
-        idx = (yy * W + xx).reshape(-1)
-        return flat[idx].reshape(*yy.shape, flat.shape[-1])
-
-    top = g(y0, x0) * (1 - wx) + g(y0, x1) * wx
-    bot = g(y1, x0) * (1 - wx) + g(y1, x1) * wx
-    return top * (1 - wy) + bot * wy
-
-
-_AXES = {
-    "z": torch.eye(3, dtype=torch.float64),
-    # y-up input frame (e.g. glTF / OpenGL worlds): (x, y, z)_yup -> (x, -z, y)_zup
-    "y": torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]], dtype=torch.float64),
-    "-y": torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]], dtype=torch.float64),
-    "x": torch.tensor([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]], dtype=torch.float64),
-    "-z": torch.tensor([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]], dtype=torch.float64),
-}
-
-
-def rotate_dirs(d: Tensor, up: str = "z", yaw_deg: float = 0.0) -> Tensor:
-    """Express world directions in the env map's +Z-up frame, then turn the map by a yaw.
-
-    ``up`` names the world axis that is "up" for the map ("z" = identity, "y": a +Y-up world,
-    "-y", "x", "-z"); the direction is rotated so that this axis becomes +Z. ``yaw_deg`` then
-    turns the environment about its up axis: the map feature at azimuth phi = atan2(dx, dy)
-    appears in the world at azimuth phi - yaw (its u coordinate is seen at u - yaw / 360).
-
-    Args:
-        d: (..., 3) directions.
-        up: up axis of the world the directions are expressed in.
-        yaw_deg: rotation of the environment about its up axis, degrees.
-
-    Returns:
-        (..., 3) directions to pass to ``envmap_lookup``.
-    """
-    if up not in _AXES:
-        from voxnero.errors import ConfigError
-
-        raise ConfigError(f"unknown env-map up axis {up!r}", fix=f"use one of {sorted(_AXES)}")
-    R = _AXES[up]
-    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
-    Rz = torch.tensor([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
-    M = (Rz @ R).to(d.dtype).to(d.device)
-    return d @ M.T
-
-
-# ----------------------------------------------------------------------------------------------
-# Filtering: solid-angle-weighted mip chain, roughness lookup, SH irradiance (differentiable)
-# ----------------------------------------------------------------------------------------------
-
-
-def _theta_overlap(h_coarse: int, h_fine: int, device=None) -> Tensor:
-    """(Hc, Hf) row weights: solid angle of the overlap of coarse and fine row cells."""
-    ec = _row_edges(h_coarse, device=device)
-    ef = _row_edges(h_fine, device=device)
-    lo = torch.maximum(ec[:-1, None], ef[None, :-1])
-    hi = torch.minimum(ec[1:, None], ef[None, 1:])
-    w = (torch.cos(lo) - torch.cos(hi)).clamp_min(0.0)
-    return w / w.sum(1, keepdim=True)
-
-
-def _phi_overlap(w_coarse: int, w_fine: int, device=None) -> Tensor:
-    """(Wc, Wf) column weights: overlap length of coarse and fine column cells."""
-    ec = torch.arange(w_coarse + 1, dtype=torch.float64, device=device) / w_coarse
-    ef = torch.arange(w_fine + 1, dtype=torch.float64, device=device) / w_fine
-    lo = torch.maximum(ec[:-1, None], ef[None, :-1])
-    hi = torch.minimum(ec[1:, None], ef[None, 1:])
-    w = (hi - lo).clamp_min(0.0)
-    return w / w.sum(1, keepdim=True)
-
-
-def resample_area(img: Tensor, H: int, W: int) -> Tensor:
-    """Solid-angle-weighted area resampling of an equirectangular map to (H, W).
-
-    Each output cell is the solid-angle-weighted mean of the input cells it overlaps, so the
-    integral of radiance over the sphere is preserved exactly. Differentiable w.r.t. ``img``.
-
-    Args:
-        img: (Hi, Wi, C) map.
-        H, W: output size (H >= 2).
-
-    Returns:
-        (H, W, C) map.
-    """
-    At = _theta_overlap(H, img.shape[0], img.device).to(img.dtype)
-    Ap = _phi_overlap(W, img.shape[1], img.device).to(img.dtype)
-    return torch.einsum("ch,hwk,dw->cdk", At, img, Ap)
-
-
-def mip_chain(img: Tensor, levels: int | None = None) -> list[Tensor]:
-    """Area (solid-angle) weighted mip pyramid of an equirectangular map.
-
-    Level k has H_k = (H_{k-1} - 1) // 2 + 1 rows (pole rows kept) and W_k = W_{k-1} // 2
-    columns, down to H = 2 or ``levels`` levels. Every level integrates to the same total
-    over the sphere. Differentiable (for learnable maps).
-
-    Args:
-        img: (H, W, C) linear radiance (or log-radiance made linear by the caller).
-        levels: number of levels including level 0 (default: as many as possible).
-
-    Returns:
-        list of (H_k, W_k, C) tensors, level 0 = ``img``.
-    """
-    chain = [img]
-    while levels is None or len(chain) < levels:
-        h, w = chain[-1].shape[:2]
-        hc, wc = (h - 1) // 2 + 1, max(w // 2, 1)
-        if h <= 2 or hc < 2:
-            break
-        chain.append(resample_area(chain[-1], hc, wc))
-    return chain
-
-
-def roughness_to_level(roughness: Tensor, base_height: int, n_levels: int) -> Tensor:
-    """Mip level for a GGX lobe: level = clamp(log2(2 alpha / dtheta_0), 0, L - 1).
-
-    alpha = max(r^2, ALPHA_MIN) is (about) the angular half-width of the half-vector lobe, so
-    the reflected lobe is ~2 alpha wide; level k's cells are dtheta_0 2^k wide with
-    dtheta_0 = pi / (H_0 - 1) (0.7 deg at H = 256). E.g. H = 256: r = 0.1 -> 0.7, r = 0.3 -> 3.9,
-    r = 1 -> 7.3 (clamped to the coarsest level).
-
-    Args:
-        roughness: (...) or (..., 1) perceptual roughness.
-        base_height: H_0 of level 0.
-        n_levels: number of levels L.
-
-    Returns:
-        fractional level, same shape as ``roughness``.
-    """
-    from voxnero.render.brdf import roughness_to_alpha
-
-    alpha = roughness_to_alpha(roughness)
-    dtheta0 = math.pi / (base_height - 1)
-    return torch.log2(2.0 * alpha / dtheta0).clamp(0.0, float(n_levels - 1))
-
-
-def lookup_rough(chain: list[Tensor], d: Tensor, roughness: Tensor) -> Tensor:
-    """Roughness-filtered lookup: linear blend of the two mip levels around
-    ``roughness_to_level(roughness)``. Differentiable w.r.t. the chain, d and roughness.
-
-    Args:
-        chain: output of ``mip_chain``.
-        d: (..., 3) directions (e.g. reflected view directions).
-        roughness: (..., 1) perceptual roughness.
-
-    Returns:
-        (..., C) filtered radiance (level 0 exactly while 2 alpha <= dtheta_0, i.e.
-        r <= sqrt(dtheta_0 / 2) = 0.078 for H = 256).
-    """
-    lev = roughness_to_level(roughness, chain[0].shape[0], len(chain))  # (..., 1)
-    return lookup_levels(chain, d, lev)
-
-
-def lookup_levels(chain: list[Tensor], d: Tensor, level: Tensor) -> Tensor:
-    """Bilinear lookup at a fractional mip level (linear blend of the two nearest levels).
-
-    Args:
-        chain: output of ``mip_chain``.
-        d: (..., 3) directions.
-        level: (...) or (..., 1) fractional level in [0, len(chain) - 1].
-
-    Returns:
-        (..., C) radiance; differentiable w.r.t. the chain, d and level.
-    """
-    L = len(chain)
-    lead = d.shape[:-1]
-    uv = dir_to_uv(d.reshape(-1, 3).to(torch.float64))
-    lev = level
-    if lev.dim() == len(lead):
-        lev = lev.unsqueeze(-1)
-    lev = lev.expand(*lead, 1).reshape(-1)
-    out = torch.zeros(uv.shape[0], chain[0].shape[-1], dtype=chain[0].dtype, device=d.device)
-    for k, img in enumerate(chain):
-        w = (1.0 - (lev - k).abs()).clamp_min(0.0) if L > 1 else torch.ones_like(lev)
-        sel = torch.nonzero(w > 0)[:, 0]  # each point touches at most two levels
-        if sel.numel() == 0:
-            continue
-        out = out.index_add(0, sel, w[sel, None].to(out.dtype) * _bilinear(img, uv[sel]))
-    return out.reshape(*lead, -1)
-
-
-_SH_BAND_GAIN = (math.pi, 2.0 * math.pi / 3.0, math.pi / 4.0)
-
-
-def sh9_project(img: Tensor) -> Tensor:
-    """Project a map onto the 9 real SH of bands 0-2 (pixel-cell quadrature).
-
-    Args:
-        img: (H, W, C) linear radiance.
-
-    Returns:
-        (9, C) coefficients c_lm = sum L(d) y_lm(d) dOmega (``encoding.sh_basis`` ordering).
-    """
-    from voxnero.render.encoding import sh_basis
-
-    H, W = img.shape[:2]
-    Y = sh_basis(pixel_dirs(H, W, device=img.device, dtype=img.dtype), 2)  # (H, W, 9)
-    om = pixel_solid_angles(H, W, device=img.device, dtype=img.dtype)
-    return torch.einsum("hwk,hw,hwc->kc", Y, om, img)
-
-
-def sh9_irradiance(coeffs: Tensor, n: Tensor) -> Tensor:
-    """Irradiance E(n) = integral L(l) max(n.l, 0) dl from order-2 SH (Ramamoorthi-Hanrahan).
-
-    Clamped at 0 (order-2 SH of a very peaked light can ring negative). Diffuse outgoing
-    radiance is albedo / pi * E.
-
-    Args:
-        coeffs: (9, C) from ``sh9_project``.
-        n: (..., 3) unit normals.
-
-    Returns:
-        (..., C) irradiance (W m^-2 sr^0 in radiance units times sr).
-    """
-    from voxnero.render.encoding import sh_basis
-
-    Y = sh_basis(n.to(coeffs.dtype), 2)
-    gain = torch.tensor([_SH_BAND_GAIN[0]] + [_SH_BAND_GAIN[1]] * 3 + [_SH_BAND_GAIN[2]] * 5,
-                        dtype=coeffs.dtype, device=coeffs.device)
-    return ((Y * gain) @ coeffs).clamp_min(0.0)
+from voxnero.render.latlong import (
+    dir_to_theta_phi,
+    envmap_lookup,
+    pixel_dirs,
+    pixel_solid_angles,
+    rotate_dirs,
+    row_edges,
+)
+from voxnero.render.microfacet import roughness_to_alpha
+from voxnero.render.mip import lookup_levels, mip_chain, resample_area, roughness_to_level
+from voxnero.render.sampling import sample_ggx_vndf
+from voxnero.render.splitsum import hammersley
 
 
 def luminance(rgb: Tensor) -> Tensor:
     """Rec. 709 luminance of linear RGB: (..., 3) -> (...)."""
     return rgb[..., 0] * 0.2126 + rgb[..., 1] * 0.7152 + rgb[..., 2] * 0.0722
 
-
-# ----------------------------------------------------------------------------------------------
-# A fixed HDR environment map
-# ----------------------------------------------------------------------------------------------
 
 #: roughness nodes of ``EnvMap.prefiltered`` (linear interpolation in between)
 PREFILTER_ROUGHNESS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.65, 0.8, 1.0)
@@ -477,7 +129,7 @@ class EnvMap:
         self._sampler = {
             "p": p, "om": om, "flat": p.reshape(-1),
             "cdf": torch.cumsum(p.reshape(-1), 0),
-            "cos_edges": torch.cos(_row_edges(H, device=self.device)),
+            "cos_edges": torch.cos(row_edges(H, device=self.device)),
         }
 
     def sample(self, u: Tensor) -> tuple[Tensor, Tensor]:
@@ -522,10 +174,6 @@ class EnvMap:
 
     # -- filtered versions for the split-sum approximation
     def _build_prefilter(self, n_samples: int = 32) -> None:
-        from voxnero.render.brdf import roughness_to_alpha
-        from voxnero.render.sampling import sample_ggx_vndf
-        from voxnero.render.splitsum import hammersley
-
         H0, W0 = self.img.shape[:2]
         chain = mip_chain(self.img)
         u = hammersley(n_samples, torch.float32).to(self.device)

@@ -12,7 +12,7 @@ import math
 import torch
 from torch import Tensor
 
-from voxnero.render.brdf import ALPHA_MIN, ggx_D, safe_normalize
+from voxnero.render.microfacet import ALPHA_MIN, ggx_D, safe_normalize
 
 #: Smallest n.v used to sample the visible normals: views at or below the horizon are treated
 #: as grazing (the BRDF is 0 there anyway, but samples and pdfs stay finite).

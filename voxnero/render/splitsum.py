@@ -5,7 +5,7 @@ The directional albedo of the specular lobe with Schlick Fresnel is linear in F0
     E(F0, n.v, r) = integral f_spec(v, l) (n.l) dl = F0 * A(n.v, r) + B(n.v, r)
 
 with A = integral of (f/F) (1 - Fc) (n.l), B = integral of (f/F) Fc (n.l), Fc = (1 - v.h)^5,
-f/F = D G / (4 n.v n.l) and G the separable Smith term of ``brdf.py``. The table is computed
+f/F = D G / (4 n.v n.l) and G the separable Smith term of ``microfacet.py``. The table is computed
 here by importance sampling the visible normals (``sampling.sample_ggx_vndf``, whose weight
 f (n.l) / pdf = F G1(l) is bounded) on a 2-D Hammersley point set, on a grid of
 ``TABLE_RES x TABLE_RES`` nodes n.v_i = (i / (R - 1))^2 (uniform in sqrt(n.v), dense at grazing
@@ -27,7 +27,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from voxnero.render.brdf import roughness_to_alpha, smith_G1
+from voxnero.render.microfacet import DIELECTRIC_F0, roughness_to_alpha, smith_G1
 from voxnero.render.sampling import NV_MIN, sample_vndf_local
 
 TABLE_RES = 64
@@ -168,7 +168,7 @@ def specular_split_sum(f0: Tensor, n_dot_v: Tensor, roughness: Tensor,
     """Split-sum specular radiance: prefiltered_light * (F0 * A + B).
 
     Args:
-        f0: (..., 3) normal-incidence reflectance (``brdf.f0_from``).
+        f0: (..., 3) normal-incidence reflectance (``microfacet.f0_from``).
         n_dot_v: (..., 1) cosine to the view direction.
         roughness: (..., 1) perceptual roughness.
         prefiltered_light: (..., 3) GGX-prefiltered radiance around the reflected direction
@@ -192,7 +192,7 @@ def dielectric_albedo(n_dot_v: Tensor, roughness: Tensor) -> Tensor:
         E_d, broadcast shape, in [0, 1].
     """
     a, b = split_sum_lookup(n_dot_v.clamp(0.0, 1.0), roughness)
-    return (0.04 * a + b).clamp(0.0, 1.0)
+    return (DIELECTRIC_F0 * a + b).clamp(0.0, 1.0)
 
 
 def dielectric_albedo_avg(roughness: Tensor) -> Tensor:
@@ -210,7 +210,7 @@ def dielectric_albedo_avg(roughness: Tensor) -> Tensor:
     table = get_table(roughness.device).to(roughness.dtype)
     R = table.shape[0]
     x = torch.linspace(0.0, 1.0, R, dtype=table.dtype, device=table.device)
-    e = 0.04 * table[..., 0] + table[..., 1]  # (R nv-nodes, R r-nodes)
+    e = DIELECTRIC_F0 * table[..., 0] + table[..., 1]  # (R nv-nodes, R r-nodes)
     f = 4.0 * e * x[:, None] ** 3
     avg = ((f[1:] + f[:-1]) * 0.5 * (x[1:] - x[:-1])[:, None]).sum(0)  # (R,)
     y = torch.sqrt(roughness.clamp(1e-8, 1.0)) * (R - 1)

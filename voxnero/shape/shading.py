@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import torch
 
-from voxnero.render.brdf import DIELECTRIC_F0, f0_from
+from voxnero.render.microfacet import DIELECTRIC_F0, f0_from
 from voxnero.render.splitsum import split_sum_lookup
 
 

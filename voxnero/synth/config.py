@@ -1,7 +1,9 @@
 """``SynthConfig``: settings of ``voxnero synth`` (the ``synth:`` section of a preset).
 
-Defaults are the ``tiny`` scene (64², 24 train + 8 test views), the unit-test size; the presets
-in ``voxnero/configs/`` set larger ones. Overrides address nested keys, e.g.
+Defaults are the ``standard`` preset's scene (256² like the dev scenes, 96 train + 16 test
+views, 32 paths per pixel); the other presets in ``voxnero/configs/`` state what they change
+(``tiny``: 64², 24 + 8 views, the unit-test size, and the ``synth`` command's default
+preset). Overrides address nested keys, e.g.
 ``voxnero synth torus --preset tiny --out DIR torus.tilt_deg=45 env.seed=3 spp=64``.
 Roughness values are perceptual r (GGX α = r²); albedo is linear RGB.
 
@@ -89,7 +91,7 @@ class EnvConfig:
         "constant": Range(0.0, 1e6)}
 
     source: str = "procedural"
-    height: int = 128
+    height: int = 256
     seed: int = 0
     scale: float = 1.0
     constant: float = 1.0
@@ -107,16 +109,16 @@ class SynthConfig:
         "chunk": at_least(1024, BIG_COUNT), "threads": THREADS}
     """Allowed values (:func:`voxnero.config.check_numbers`), checked before ``validate``."""
 
-    resolution: int = 64
-    n_train: int = 24
-    n_test: int = 8
-    spp: int = 9
+    resolution: int = 256
+    n_train: int = 96
+    n_test: int = 16
+    spp: int = 32
     max_depth: int = 3
     seed: int = 0
     fov_deg: float = 40.0
     distance: float = 4.0
     elevation_range_deg: list[float] = field(default_factory=lambda: [-20.0, 90.0])
-    chunk: int = 1 << 19
+    chunk: int = 1 << 17
     threads: int = 1
     write_train_exr: bool = False
     env: EnvConfig = field(default_factory=EnvConfig)

@@ -41,7 +41,7 @@ def procedural_envmap(height: int = 128, seed: int = 0, scale: float = 1.0,
         (img (H, 2H, 3) float32 linear radiance, description dict with the layout for
         material.json).
     """
-    from voxnero.render.envmap import pixel_dirs
+    from voxnero.render.latlong import pixel_dirs
 
     rng = np.random.default_rng(seed)
     H, W = height, 2 * height

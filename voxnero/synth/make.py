@@ -52,7 +52,7 @@ def make_scene(shape: str, out_dir: str | Path, cfg: SynthConfig | None = None,
     Args:
         shape: "sphere", "torus" or "two_spheres".
         out_dir: scene folder (created; existing files are overwritten).
-        cfg: settings (default: :class:`SynthConfig` defaults, the tiny size).
+        cfg: settings (default: :class:`SynthConfig` defaults, the standard size).
         progress: show a tqdm progress bar over views.
         device: torch device of the ray batches.
 

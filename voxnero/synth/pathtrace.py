@@ -23,7 +23,8 @@ from collections.abc import Callable
 
 import torch
 
-from voxnero.render.brdf import brdf_eval, f0_from, fresnel_schlick, roughness_to_alpha
+from voxnero.render.brdf import brdf_eval
+from voxnero.render.microfacet import f0_from, fresnel_schlick, roughness_to_alpha
 from voxnero.render.sampling import (
     pdf_cosine,
     pdf_ggx_vndf,

@@ -43,8 +43,8 @@ def _image(a: np.ndarray):
 def channel_textures(asset) -> dict[str, np.ndarray] | None:
     """Display textures of a textured asset: ``albedo`` (S, S, 3) sRGB-encoded, ``metallic`` and
     ``roughness`` (S, S, 3) linear grey; None for a uniform material."""
+    from voxnero.asset.model import TextureMaterial
     from voxnero.io.color import linear_to_srgb
-    from voxnero.relight.asset import TextureMaterial
 
     m = asset.material
     if not isinstance(m, TextureMaterial):
@@ -63,7 +63,7 @@ def asset_mesh(asset):
     """
     import open3d as o3d
 
-    from voxnero.relight.asset import TextureMaterial
+    from voxnero.asset.model import TextureMaterial
 
     m = asset.legacy_mesh()
     if isinstance(asset.material, TextureMaterial):
@@ -77,14 +77,14 @@ def channel_material(asset, channel: str, textures: dict[str, np.ndarray] | None
     """``MaterialRecord`` showing ``channel`` of the asset (see the module docstring).
 
     Args:
-        asset: :class:`voxnero.relight.asset.Asset`.
+        asset: :class:`voxnero.asset.model.Asset`.
         channel: one of :data:`CHANNELS`.
         textures: :func:`channel_textures` (computed if None).
     """
     import open3d.visualization.rendering as rendering
 
+    from voxnero.asset.model import UniformMaterial
     from voxnero.io.color import linear_to_srgb
-    from voxnero.relight.asset import UniformMaterial
 
     if channel not in CHANNELS:
         from voxnero.errors import ConfigError

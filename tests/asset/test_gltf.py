@@ -11,7 +11,7 @@ import numpy as np
 import open3d as o3d
 from PIL import Image
 
-from voxnero.export.gltf import SCENE_TO_GLTF, read_glb, write_glb
+from voxnero.asset.gltf import SCENE_TO_GLTF, read_glb, write_glb
 from voxnero.io.color import linear_to_srgb
 
 _COMP = {5126: (np.float32, 4), 5125: (np.uint32, 4), 5123: (np.uint16, 2), 5121: (np.uint8, 1)}

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from voxnero.export.gltf import write_glb
+from voxnero.asset.gltf import write_glb
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "tools" / "gltf_validate.js"

@@ -1,4 +1,5 @@
-"""glTF 2.0 binary (``.glb``) writer for a textured PBR mesh (a small writer of our own).
+"""glTF 2.0 binary (``.glb``): the writer of stage 2's textured PBR mesh (a small writer of our
+own) and its reader, back into the scene's input frame.
 
 Open3D's glTF writer keeps only a base-colour texture and writes a metallic *factor* that
 multiplies the texture, so the asset is written here directly: one mesh, one primitive
@@ -15,6 +16,11 @@ rotation, -90° about X), recorded in a sidecar ``<name>.json``.
 File layout (glTF 2.0 spec, "GLB File Format Specification"): 12-byte header
 (magic ``glTF``, version 2, total length), a JSON chunk padded with spaces to 4 bytes, a BIN chunk
 padded with zeros to 4 bytes; every buffer view starts at a multiple of 4 bytes.
+
+Reading (:func:`load_glb`) undoes the rotation recorded in the sidecar (``scene_to_gltf``)
+exactly (``p_scene = Rᵀ p_glTF``); base colour is decoded from sRGB to linear, the
+metallic-roughness texture is linear (G = perceptual roughness, B = metallic); factors multiply
+the textures. Any single-primitive glTF 2.0 binary with embedded PNG textures loads.
 """
 
 from __future__ import annotations
@@ -23,18 +29,25 @@ import io
 import json
 import struct
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from PIL import Image
 
-from voxnero.export.textures import TexturedMesh
+from voxnero.asset.model import Asset, make_asset, material_from_maps
+from voxnero.errors import DataError
 from voxnero.io.color import linear_to_srgb
+
+if TYPE_CHECKING:  # the writers take a baked mesh; baking (Open3D) is not needed to read
+    from voxnero.asset.textures import TexturedMesh
 
 SCENE_TO_GLTF = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 """Rotation applied to scene-frame vectors: (x, y, z)_glTF = (x, z, −y)_scene (Blender's)."""
 
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 _FLOAT, _UINT = 5126, 5125
+_COMPONENTS = {5126: np.float32, 5125: np.uint32, 5123: np.uint16, 5121: np.uint8}
+_NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 
 def png_bytes(img: np.ndarray) -> bytes:
@@ -168,3 +181,90 @@ def read_glb(path: str | Path) -> tuple[dict, bytes]:
             raise ValueError(f"{path}: bad BIN chunk")
         binary = data[off + 8:off + 8 + blen]
     return doc, binary
+
+
+def _decode_png(blob: bytes) -> np.ndarray:
+    with Image.open(io.BytesIO(blob)) as im:
+        return np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
+
+
+def _accessor(doc: dict, binary: bytes, k: int) -> np.ndarray:
+    acc = doc["accessors"][k]
+    view = doc["bufferViews"][acc["bufferView"]]
+    dt = np.dtype(_COMPONENTS[acc["componentType"]])
+    nc = _NCOMP[acc["type"]]
+    off = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    stride = view.get("byteStride", 0) or dt.itemsize * nc
+    n = acc["count"]
+    if stride == dt.itemsize * nc:
+        a = np.frombuffer(binary, dt, n * nc, off).reshape(n, nc)
+    else:
+        a = np.stack([np.frombuffer(binary, dt, nc, off + i * stride) for i in range(n)])
+    return a.astype(np.float64 if dt == np.float32 else np.int64)
+
+
+def load_glb(path: str | Path) -> Asset:
+    """Load ``model.glb`` written by :func:`write_glb` (or any single-primitive glTF 2.0
+    binary with a metallic-roughness material) back into the scene's input frame.
+
+    Args:
+        path: the ``.glb`` file; ``<path>.json`` (sidecar) gives ``scene_to_gltf`` and
+            ``scene_up``; without it the glTF frame is kept (+Y up).
+
+    Returns:
+        The :class:`Asset`.
+
+    Raises:
+        DataError: unreadable file or missing parts.
+    """
+    path = Path(path)
+    try:
+        doc, binary = read_glb(path)
+    except (OSError, ValueError, struct.error) as e:
+        raise DataError(f"cannot read glTF binary ({e})", path=path,
+                        fix="pass a model.glb written by 'voxnero material'") from None
+    try:
+        prim = doc["meshes"][0]["primitives"][0]
+        att = prim["attributes"]
+        pos = _accessor(doc, binary, att["POSITION"])
+        idx = _accessor(doc, binary, prim["indices"]).reshape(-1, 3)
+        nrm = _accessor(doc, binary, att["NORMAL"]) if "NORMAL" in att else None
+        uv = _accessor(doc, binary, att["TEXCOORD_0"]) if "TEXCOORD_0" in att else None
+        pbr = doc["materials"][prim["material"]].get("pbrMetallicRoughness", {}) \
+            if "material" in prim else {}
+    except (KeyError, IndexError) as e:
+        raise DataError(f"glTF file lacks a mesh primitive part ({e})", path=path,
+                        fix="export one mesh with POSITION, indices and a PBR material") from None
+
+    def image(tex_ref: dict | None) -> np.ndarray | None:
+        if tex_ref is None:
+            return None
+        img = doc["images"][doc["textures"][tex_ref["index"]]["source"]]
+        if "bufferView" not in img:
+            raise DataError("texture image is an external file (uri), not embedded", path=path,
+                            fix="embed the textures (a .glb as 'voxnero material' writes it)")
+        view = doc["bufferViews"][img["bufferView"]]
+        off = view.get("byteOffset", 0)
+        return _decode_png(binary[off:off + view["byteLength"]])
+
+    side = path.with_suffix(path.suffix + ".json")
+    meta = json.loads(side.read_text()) if side.is_file() else {}
+    R = np.asarray(meta.get("scene_to_gltf", np.eye(3)), dtype=np.float64)
+    # rows are row vectors in the file: p_glTF = R p_scene  =>  p_scene = R^T p_glTF
+    pos = pos @ R
+    if nrm is None:
+        nrm = np.zeros_like(pos)
+    nrm = nrm @ R
+    up = np.asarray(meta.get("scene_up", R.T @ np.array([0.0, 1.0, 0.0])), dtype=np.float64)
+
+    bcf = np.asarray(pbr.get("baseColorFactor", [1, 1, 1, 1]), dtype=np.float32)[:3]
+    mf = float(pbr.get("metallicFactor", 1.0))
+    rf = float(pbr.get("roughnessFactor", 1.0))
+    base = image(pbr.get("baseColorTexture"))
+    mr = image(pbr.get("metallicRoughnessTexture"))
+    mat = material_from_maps(uv, base, None if mr is None else mr[..., 2],
+                             None if mr is None else mr[..., 1], bcf, mf, rf)
+    asset = make_asset(pos, idx, nrm, mat, up, str(path))
+    if meta.get("scene"):
+        asset.scene = Path(meta["scene"])
+    return asset

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import torch
 
-from voxnero.export.envmap import write_envmap
+from voxnero.asset.envmap import write_envmap
 from voxnero.io.exr import read_envmap
-from voxnero.render.envmap import envmap_lookup, pixel_dirs
+from voxnero.render.latlong import envmap_lookup, pixel_dirs
 
 
 def test_envmap_roundtrip_and_convention(tmp_path):

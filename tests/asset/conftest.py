@@ -6,7 +6,8 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from voxnero.export.textures import bake_textures
+from tests.fixtures.assets import sphere_asset_files  # noqa: F401 (a fixture)
+from voxnero.asset.textures import bake_textures
 
 
 @pytest.fixture(scope="session")

@@ -6,7 +6,7 @@ import numpy as np
 import open3d as o3d
 from PIL import Image
 
-from voxnero.export.obj import write_obj
+from voxnero.asset.obj import write_obj
 
 
 def test_obj_roundtrip(tmp_path, sphere_textured):

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 
-from voxnero.export.summary import vertex_areas, weighted_stats, write_summary
+from voxnero.material.summary import vertex_areas, weighted_stats, write_summary
 
 
 def test_weighted_stats_and_areas(tmp_path):

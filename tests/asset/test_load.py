@@ -1,4 +1,5 @@
-"""Asset loading: exported glb / obj come back in the scene frame with their materials."""
+"""Tests of voxnero/asset/load.py and the readers of asset/gltf.py, asset/obj.py, asset/gt.py:
+exported glb / obj come back in the scene frame with their materials."""
 
 from __future__ import annotations
 
@@ -11,15 +12,11 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from voxnero.asset.gltf import load_glb
+from voxnero.asset.load import load_asset
+from voxnero.asset.model import TextureMaterial, UniformMaterial, sample_texture
+from voxnero.asset.obj import load_obj
 from voxnero.errors import DataError
-from voxnero.relight.asset import (
-    TextureMaterial,
-    UniformMaterial,
-    load_asset,
-    load_glb,
-    load_obj,
-    sample_texture,
-)
 
 DEV = Path("/work/shared/data")
 

@@ -1,1 +1,0 @@
-"""Exports of stage 2: textured glTF 2.0 / OBJ meshes, the env map as EXR, materials.json."""
