@@ -125,9 +125,9 @@ def coarse_start(tr: ShapeTrainer) -> None:
 
 def with_coarse_schedule(cfg: ShapeConfig) -> ShapeConfig:
     """The config of a start from the coarse stage's hull: the SDF stage begins sharp
-    (``coarse.s_start``), on one grid of ``coarse.sdf_res`` and with ``coarse.normal_smooth``, since its
-    surface is already near the object's (a blurry start erodes thin parts, a normal smoothness one voxel wide removes rods
-    of that width: docs/STAGE1.md, finding 17)."""
+    (``coarse.s_start``), on one grid of ``coarse.sdf_res`` and with ``coarse.normal_smooth``,
+    since its surface is already near the object's (a blurry start erodes thin parts, a normal
+    smoothness one voxel wide removes rods of that width: docs/STAGE1.md, finding 17)."""
     c = cfg.coarse
     return replace(cfg, neus=replace(cfg.neus, s_start=c.s_start),
                    loss=replace(cfg.loss, normal_smooth=c.normal_smooth),
