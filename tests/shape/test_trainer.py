@@ -8,6 +8,7 @@ resume from its checkpoint.
 
 from __future__ import annotations
 
+import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -270,3 +271,46 @@ def test_race_interrupted_in_its_second_start_resumes_there(scene, tmp_path):
     finally:
         ShapeTrainer.train_step = orig
     assert counted["n"] == 11 and tr.step == 40 and (tmp_path / "mesh.ply").is_file()
+
+
+def _coarse_cfg(coarse_iters: int, iters: int = 1) -> ShapeConfig:
+    cfg = _cfg(iters)
+    cfg.coarse.iters, cfg.coarse.res, cfg.coarse.rays = coarse_iters, 48, 1024
+    cfg.coarse.sdf_res, cfg.coarse.race, cfg.coarse.smooth = 48, False, 1.0
+    return cfg
+
+
+def test_coarse_start_carves_the_sphere_and_fits_the_grid_to_it(scene, tmp_path):
+    """The coarse free-space stage alone (one SDF step after it) gives a surface at the true
+    radius within two coarse voxels, on an SDF grid fitted around it; a re-run resumes after
+    the coarse stage instead of repeating it."""
+    torch.manual_seed(0)
+    cfg = _coarse_cfg(250)
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
+    path = tr.run()
+    r = np.linalg.norm(_mesh_points(path), axis=1)
+    voxel_in = 2 * cfg.grid.bound / (cfg.coarse.res - 1) * tr.scene.norm.scale  # input frame
+    assert abs(np.median(r) - RADIUS) < 2 * voxel_in, (np.median(r), voxel_in)
+    dec = json.loads((tmp_path / "decisions.json").read_text())["coarse"]
+    assert dec["value"] == "hull" and dec["evidence"]["sdf_box"] is not None
+    side = dec["evidence"]["sdf_box"][1][0] - dec["evidence"]["sdf_box"][0][0]
+    assert side < 2 * cfg.grid.bound  # the grid now spans the object, not the unit cube
+    assert tr.model.sdf.voxel < 2 * cfg.grid.bound / (cfg.coarse.sdf_res - 1)
+    # resume: the checkpoint after the coarse stage carries its decision and the fitted grid
+    tr2 = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
+    assert tr2.load_checkpoint() and starts.coarse_done(tr2)
+    assert torch.equal(tr2.model.sdf.bounds, tr.model.sdf.bounds)
+    assert tr2.model.sdf.res == tr.model.sdf.res
+
+
+def test_coarse_start_races_the_sphere_and_keeps_the_better_fit(scene, tmp_path):
+    cfg = _coarse_cfg(150, iters=20)
+    cfg.coarse.race = True
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
+    tr.run()
+    dec = json.loads((tmp_path / "decisions.json").read_text())["start"]
+    assert dec["setting"] == ["coarse", "r=0.7"]
+    fits = dict(zip(["coarse", 0.7], dec["evidence"]["psnr"], strict=True))
+    kept = max(fits, key=fits.get)
+    assert dec["value"] == kept
+    assert (tmp_path / "starts" / "coarse").is_dir() and (tmp_path / "starts" / "r0.7").is_dir()
