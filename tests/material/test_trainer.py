@@ -135,15 +135,17 @@ def test_visibility_casts_auto_skips_a_convex_mesh_and_can_be_forced():
 
 def test_secondary_light_model_line_and_forcing():
     """Under 0.1 % of secondary rays hitting the mesh (facet-scale dents of a convex object's
-    marching-cubes mesh) "auto" models neither shadows nor indirect light; at or above it both."""
-    assert decide_secondary(0.0, "auto", "auto") == (False, False)
-    assert decide_secondary(0.0007, "auto", "auto") == (False, False)  # gold preview mesh
-    assert decide_secondary(SECONDARY_HIT_MIN, "auto", "auto") == (True, True)
-    assert decide_secondary(0.04, "auto", "auto") == (True, True)  # the dev torus
-    assert decide_secondary(0.0, "on", "auto") == (False, True)
-    assert decide_secondary(0.0, True, "splitsum") == (True, True)
-    assert decide_secondary(0.04, "off", "off") == (False, False)
-    assert decide_secondary(0.04, False, "auto") == (True, False)
+    marching-cubes mesh) "auto" models neither shadows nor indirect light; at or above it
+    inter-reflections are traced and every secondary ray is cast."""
+    assert decide_secondary(0.0, "auto", "auto") == ("off", False)
+    assert decide_secondary(0.0007, "auto", "auto") == ("off", False)  # gold preview mesh
+    assert decide_secondary(SECONDARY_HIT_MIN, "auto", "auto") == ("traced", True)
+    assert decide_secondary(0.04, "auto", "auto") == ("traced", True)  # the dev torus
+    assert decide_secondary(0.0, "on", "auto") == ("off", True)
+    assert decide_secondary(0.0, True, "splitsum") == ("splitsum", True)
+    assert decide_secondary(0.0, True, "traced") == ("traced", True)
+    assert decide_secondary(0.04, "off", "off") == ("off", False)
+    assert decide_secondary(0.04, False, "auto") == ("traced", False)
 
 
 def test_visibility_casts_auto_turn_on_for_two_spheres_that_see_each_other():
@@ -163,3 +165,4 @@ def test_visibility_casts_auto_turn_on_for_two_spheres_that_see_each_other():
     tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None)
     assert tr.decisions["secondary_hit_fraction"] > 10 * SECONDARY_HIT_MIN
     assert tr.visibility and tr.use_indirect
+    assert tr.decisions["indirect_model"] == "traced" and tr.bounces is not None

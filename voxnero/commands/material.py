@@ -178,9 +178,10 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
         s = cfg.render.eval_scale
         spp = Strategies(cfg.render.spp_cos * s, cfg.render.spp_ggx * s, cfg.render.spp_env * s)
         metrics.update(evaluate_scene(scene_path, trainer.geom, trainer.field, env, spp,
-                                      trainer.use_indirect, trainer.visibility,
+                                      trainer.indirect_model, trainer.visibility,
                                       cfg.eval_views, out / "eval",
-                                      subpixels=cfg.render.eval_subpixels))
+                                      subpixels=cfg.render.eval_subpixels,
+                                      bounces=trainer.bounces))
         times["eval_s"] = time.perf_counter() - t3
     (out / "metrics.json").write_text(json.dumps(json_safe(metrics), indent=1, default=str,
                                                  allow_nan=False))

@@ -55,16 +55,29 @@ class LightConfig:
     """Direct light (explicit lat-long HDR map) and indirect light."""
 
     RANGES: ClassVar[dict[str, Range]] = {
-        "env_height": at_least(4, 4096), "upsample_at": FRACTION, "env_smooth": WEIGHT}
+        "env_height": at_least(4, 4096), "upsample_at": FRACTION, "env_smooth": WEIGHT,
+        "bounces": at_least(0, 16), "rr_bounces": at_least(0, 16),
+        "rr_survive": Range(0.0, 1.0, lo_open=True), "bounce_spp": at_least(1, 64)}
 
     env_height: list[int] = _field(default_factory=lambda: [64, 256])
     """Env-map heights coarse to fine (width = 2 × height); upsampled at ``upsample_at``."""
     upsample_at: float = 0.3
     """Fraction of ``iters`` at which the env map moves to the next resolution."""
-    indirect: Literal["auto", "splitsum", "off"] = "auto"
-    """Radiance of secondary rays that hit the object: split-sum estimate of the outgoing
-    radiance at the hit from the current material and env map (auto: on when at least 0.1 % of
-    the cache's secondary rays hit the mesh, ``trainer.SECONDARY_HIT_MIN``), or off (black)."""
+    indirect: Literal["auto", "traced", "splitsum", "off"] = "auto"
+    """Radiance of secondary rays that hit the object. traced: the ray is cast on the mesh and
+    the hit shaded with the current material and env map by the same estimator (``bounces``
+    bounces, then ``rr_bounces`` by Russian roulette, then the split-sum estimate); splitsum:
+    the split-sum estimate of the outgoing radiance at the first hit (no further bounce); off:
+    black. auto: traced when at least 0.1 % of the cache's cosine secondary rays hit the mesh
+    (``trainer.SECONDARY_HIT_MIN``), else off."""
+    bounces: int = 2
+    """Inter-reflection bounces traced after the primary hit (indirect: traced). Two: a chrome
+    object that sees itself shows reflections of reflections (docs/STAGE2.md)."""
+    rr_bounces: int = 2
+    """Further bounces, each continued with probability ``rr_survive`` (Russian roulette)."""
+    rr_survive: float = 0.5
+    bounce_spp: int = 1
+    """Samples per strategy (cosine, GGX, env) at every secondary hit."""
     env_smooth: float = 1e-4
     """Weight of a total-variation prior on the log env map (fills directions never seen)."""
 

@@ -31,15 +31,28 @@ import numpy as np
 import torch
 
 from voxnero.material.lights import IndirectLight
-from voxnero.material.render import Strategies, env_sampler, rotated_pattern, shade
+from voxnero.material.render import Bounces, Strategies, env_sampler, rotated_pattern, shade
 from voxnero.material.surface import Geometry
 from voxnero.render.latlong import envmap_lookup
 
 
+def indirect_model(indirect: bool | str) -> str:
+    """The light model of secondary rays that hit the object: "traced", "splitsum" or "off".
+
+    ``True`` (what ``materials.json``'s ``decisions.indirect`` holds) is stage 2's model,
+    traced inter-reflections; ``False`` is "off"; a string names the model.
+    """
+    if isinstance(indirect, str):
+        if indirect not in ("traced", "splitsum", "off"):
+            raise ValueError(f"unknown indirect model {indirect!r}")
+        return indirect
+    return "traced" if indirect else "off"
+
+
 def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: int,
-                spp: Strategies, indirect: bool = True, visibility: bool = True,
+                spp: Strategies, indirect: bool | str = True, visibility: bool = True,
                 chunk: int = 2048, generator: torch.Generator | None = None,
-                subpixels: int = 4) -> dict[str, torch.Tensor]:
+                subpixels: int = 4, bounces: Bounces | None = None) -> dict[str, torch.Tensor]:
     """Render one view (linear radiance, box-filtered over each pixel) and its material maps.
 
     Args:
@@ -48,11 +61,13 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
         spp: samples per strategy per pixel, dealt out among the subpixels from one rotated
             Hammersley pattern per pixel (sample j to subpixel j mod K, so the pixel keeps the
             stratification of all its samples; at most as many subpixels as the largest
-            count); indirect: use the split-sum indirect estimate for secondary hits;
+            count); indirect: light along secondary rays that hit the object (see
+            :func:`indirect_model`: True = traced inter-reflections, the stage-2 default);
             visibility: cast secondary rays.
         chunk: object pixels shaded at once.
         generator: torch generator (jitter and Monte Carlo).
         subpixels: points per pixel averaged in linear radiance (1: the pixel centre only).
+        bounces: the traced model's bounces (default :class:`Bounces`()).
 
     Returns:
         dict of ``rgb`` (H, W, 3) linear, ``hit`` (H, W) bool (pixel centre hits the mesh),
@@ -68,7 +83,9 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
     env_image = env_image.to(dev)
     centre = pixel_centers(H, W).reshape(-1, 2)
     cam = torch.full((H * W,), int(index), dtype=torch.long)
-    ind = IndirectLight(env_image) if indirect else None
+    model = indirect_model(indirect)
+    ind = IndirectLight(env_image) if model != "off" else None
+    bnc = (bounces or Bounces()) if model == "traced" else None
     sampler = env_sampler(env_image) if spp.env else None
     counts = (spp.cos, spp.ggx, spp.env if sampler is not None else 0)
     subpixels = max(1, min(subpixels, max(counts)))
@@ -94,7 +111,7 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
                 x, n = geom.points_at(t, b), geom.normals_at(t, b)
                 c[j] = shade(geom, field, env_image, t, b, x, n, -d[j], sub, ind, sampler,
                              visibility, generator,
-                             [p[j.cpu()] if p is not None else None for p in pats])
+                             [p[j.cpu()] if p is not None else None for p in pats], bnc)
             rgb += c / subpixels
         o, d = pixel_rays(cameras, cam, centre)
         _, tri, bary = geom.cast(o.to(dev), d.to(dev))
@@ -119,9 +136,10 @@ def _mean(xs: list[float]) -> float:
 
 
 def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: torch.Tensor,
-                   spp: Strategies, indirect: bool, visibility: bool = True,
+                   spp: Strategies, indirect: bool | str, visibility: bool = True,
                    views: int = -1, out_dir: str | Path | None = None,
-                   log=print, subpixels: int = 4) -> dict[str, Any]:
+                   log=print, subpixels: int = 4, bounces: Bounces | None = None
+                   ) -> dict[str, Any]:
     """Novel-view, relighting and material-map metrics on a scene's test views.
 
     Args:
@@ -134,6 +152,7 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
         views: number of test views (evenly spread; -1 = all).
         out_dir: where to write comparison PNGs (``eval/``), or None.
         subpixels: points per pixel of the box filter (:func:`render_view`).
+        bounces: the traced model's bounces (:func:`render_view`).
 
     Returns:
         Metrics dict (JSON-friendly); empty if the scene has no test split.
@@ -166,7 +185,7 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
     renders = {}
     for i in pick:
         r = render_view(geom, field, env_image, test.cameras, i, spp, indirect, visibility,
-                        generator=gen, subpixels=subpixels)
+                        generator=gen, subpixels=subpixels, bounces=bounces)
         renders[i] = r
         gt = test.images[i]
         pred = srgb(r["rgb"])
@@ -202,7 +221,7 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
         vals = {"psnr": [], "ssim": []}
         for i in pick:
             r = render_view(geom, field, env_new, sp.cameras, i, spp, indirect, visibility,
-                            generator=gen, subpixels=subpixels)
+                            generator=gen, subpixels=subpixels, bounces=bounces)
             full = (test.masks[i] >= 1 - 0.5 / 255) if test.masks is not None else r["hit"]
             full = full & r["hit"]
             if not full.any():

@@ -1,43 +1,43 @@
-"""Monte Carlo rendering equation on fixed surface points (stage 2).
+"""Rendering of surface points on the fixed mesh: the estimator plus the light paths on the mesh.
 
-For a surface point x with shading normal n, seen from the unit direction v::
+The integral at a surface point is the shading core's one Monte Carlo estimator
+(:func:`voxnero.render.estimator.shade_mc`: cosine, GGX-VNDF and env-map samples, multi-sample
+MIS with the power heuristic, rotated Hammersley patterns, material detached for sampling).
+This module supplies what it needs from the mesh (Open3D, :class:`~voxnero.material.surface.
+Geometry`): ray origins off the surface, visibility of every secondary ray (``test_occlusions``)
+and the radiance arriving along a secondary ray that hits the object, as
 
-    L_o(x, v) = ∫ f_r(n, v, l) L_i(x, l) max(n·l, 0) dl
+* ``traced`` (:class:`Paths`): the ray is cast on the mesh and the hit is shaded with the
+  learned material and light by the same estimator (``Bounces.traced`` inter-reflection
+  bounces, then ``Bounces.rr`` more continued by Russian roulette), after which the split-sum
+  estimate (:class:`voxnero.material.lights.IndirectLight`) or 0 ends the path;
+* ``splitsum``: the split-sum estimate at the first secondary hit (no further casts);
+* off: 0 (shadows only).
 
-is estimated with three sampling strategies of the shading core — cosine-weighted
-(``sample_cosine``), GGX visible normals (``sample_ggx_vndf``) and the env map's own importance
-sampling (``voxnero.render.envmap.EnvMap.sample``) — combined by multiple
-importance sampling with the power heuristic (multi-sample MIS, Veach 1997)::
-
-    F = Σ_k (1 / n_k) Σ_j w_k(l_kj) f L_i cos / p_k(l_kj),
-    w_k = (n_k p_k)² / Σ_i (n_i p_i)²,   so   w_k / (n_k p_k) = n_k p_k / Σ_i (n_i p_i)².
-
-Samples are a fixed 2-D Hammersley pattern per strategy shifted by a random toroidal offset
-per pixel (Cranley–Patterson rotation): stratified, low-variance and unbiased. Sampling uses
-the material *detached* (so the pdfs are constants and the gradient of the estimate is an
-unbiased estimate of the gradient of L_o). L_i is the env map along l if the secondary ray
-leaves the object (Open3D ``test_occlusions``), else the indirect estimate at the first hit
-(:class:`voxnero.material.lights.IndirectLight`), or 0 when indirect light is off.
+Stage 2's training and evaluation renders and ``voxnero relight`` all go through
+:class:`Paths`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
 
 from voxnero.material.lights import IndirectLight
 from voxnero.material.surface import Geometry
-from voxnero.render.brdf import brdf_eval, roughness_to_alpha
-from voxnero.render.envmap import EnvMap
-from voxnero.render.sampling import pdf_cosine, pdf_ggx_vndf, sample_cosine, sample_ggx_vndf
-from voxnero.render.splitsum import hammersley
+from voxnero.render.envmap import EnvMap, envmap_lookup
+from voxnero.render.estimator import rotated_pattern, shade_mc
+from voxnero.render.estimator import sample_directions as _sample_directions
+
+__all__ = ["Bounces", "Paths", "Strategies", "env_sampler", "rotated_pattern",
+           "sample_directions", "shade"]
 
 
 @dataclass
 class Strategies:
-    """Samples per pixel of each strategy."""
+    """Samples per point of each strategy."""
 
     cos: int = 8
     ggx: int = 8
@@ -46,6 +46,29 @@ class Strategies:
     @property
     def total(self) -> int:
         return self.cos + self.ggx + self.env
+
+    @property
+    def counts(self) -> tuple[int, int, int]:
+        return (self.cos, self.ggx, self.env)
+
+
+@dataclass
+class Bounces:
+    """How light arriving along secondary rays that hit the object is estimated.
+
+    Attributes:
+        traced: inter-reflection bounces traced on the mesh and shaded with the estimator
+            after the first surface interaction (0: the ``tail`` at the first secondary hit).
+        rr: further bounces each continued with probability ``survive`` (Russian roulette,
+            weight 1 / survive: unbiased) before the tail ends the path.
+        survive: Russian-roulette survival probability.
+        spp: samples per strategy at every secondary hit.
+    """
+
+    traced: int = 2
+    rr: int = 2
+    survive: float = 0.5
+    spp: Strategies = field(default_factory=lambda: Strategies(1, 1, 1))
 
 
 def env_sampler(image: Tensor) -> EnvMap:
@@ -61,131 +84,160 @@ def env_sampler(image: Tensor) -> EnvMap:
     return EnvMap(image.detach())
 
 
-def rotated_pattern(n_pix: int, n: int, generator: torch.Generator | None,
-                    device: torch.device | str = "cpu") -> Tensor:
-    """Hammersley pattern of n points, randomly shifted (mod 1) per pixel: (n_pix, n, 2)."""
-    base = hammersley(n, dtype=torch.float32).to(device) if n > 1 else \
-        torch.full((1, 2), 0.5, device=device)
-    # drawn with the (CPU) generator, then moved: the same stream on every device
-    shift = torch.rand((n_pix, 1, 2), generator=generator).to(device)
-    return torch.remainder(base[None] + shift, 1.0).clamp(0.0, 1.0 - 1e-7)
-
-
 def sample_directions(n: Tensor, v: Tensor, alpha: Tensor, spp: Strategies, env=None,
                       generator: torch.Generator | None = None,
                       patterns: list[Tensor | None] | None = None
                       ) -> tuple[Tensor, Tensor, list[int]]:
-    """Draw all strategies' directions and the MIS weight-over-pdf of each.
-
-    Args:
-        n: (N, 3) unit normals; v: (N, 3) unit view directions; alpha: (N, 1) GGX alpha
-            (detached).
-        spp: samples per strategy (the env strategy is dropped when ``env`` is None).
-        env: env-map sampler (see :func:`env_sampler`) or None.
-        generator: random stream.
-        patterns: optional uniform points per strategy (cosine, GGX, env), each (N, count, 2)
-            or None, used instead of a fresh :func:`rotated_pattern` (e.g. one pixel's pattern
-            shared out among its subpixels).
+    """:func:`voxnero.render.estimator.sample_directions` with a :class:`Strategies`.
 
     Returns:
-        l (N, S, 3) unit directions, wop (N, S) = w_k / (n_k p_k) of the strategy that drew each
-        sample, and the counts [n_cos, n_ggx, n_env] actually used.
+        l (N, S, 3), wop (N, S) and the counts [n_cos, n_ggx, n_env] actually used.
     """
-    N = n.shape[0]
     counts = [spp.cos, spp.ggx, spp.env if env is not None else 0]
-    dirs, owner = [], []
-    for k, c in enumerate(counts):
-        if c == 0:
-            continue
-        u = patterns[k] if patterns is not None and patterns[k] is not None else \
-            rotated_pattern(N, c, generator, n.device)
-        u = u.to(n.device).reshape(-1, 2)
-        nk = n[:, None].expand(N, c, 3).reshape(-1, 3)
-        if k == 0:
-            l, _ = sample_cosine(u, nk)
-        elif k == 1:
-            vk = v[:, None].expand(N, c, 3).reshape(-1, 3)
-            ak = alpha[:, None].expand(N, c, 1).reshape(-1)
-            l, _ = sample_ggx_vndf(u, nk, vk, ak)
-        else:
-            l, _ = env.sample(u)
-            l = l.to(n.dtype)
-        dirs.append(l.view(N, c, 3))
-        owner += [k] * c
-    l = torch.cat(dirs, 1)
-    S = l.shape[1]
-    nS = n[:, None].expand(N, S, 3).reshape(-1, 3)
-    lS = l.reshape(-1, 3)
-    q = []
-    if counts[0]:
-        q.append(counts[0] * pdf_cosine(nS, lS))
-    else:
-        q.append(torch.zeros(N * S, device=n.device))
-    if counts[1]:
-        vS = v[:, None].expand(N, S, 3).reshape(-1, 3)
-        aS = alpha[:, None].expand(N, S, 1).reshape(-1)
-        q.append(counts[1] * pdf_ggx_vndf(nS, vS, lS, aS))
-    else:
-        q.append(torch.zeros(N * S, device=n.device))
-    if counts[2]:
-        q.append(counts[2] * env.pdf(lS).to(n.dtype).reshape(-1))
-    else:
-        q.append(torch.zeros(N * S, device=n.device))
-    q = torch.stack(q, -1).view(N, S, 3)
-    own = torch.tensor(owner, device=n.device)
-    q_own = q.gather(-1, own.view(1, S, 1).expand(N, S, 1))[..., 0]
-    denom = (q * q).sum(-1)
-    wop = torch.where(denom > 0, q_own / denom.clamp_min(1e-30), torch.zeros_like(denom))
+    l, wop = _sample_directions(n, v, alpha, counts, env, generator, patterns)
     return l, wop, counts
 
 
-def incident_radiance(geom: Geometry, field, env_image: Tensor, indirect: IndirectLight | None,
-                      tri: Tensor, x: Tensor, l: Tensor, visibility: bool = True) -> Tensor:
-    """L_i along secondary rays: env map if the ray escapes, indirect estimate if it hits.
+class Paths:
+    """Light paths on a fixed mesh: shades surface points with :func:`shade_mc`, casting
+    secondary rays with Open3D and estimating what they bring (see the module).
 
     Args:
-        geom: the mesh; field: material field; env_image: (H, W, 3) current linear map.
-        indirect: indirect-light model, or None (occluded rays carry 0).
-        tri: (N,) triangles of the surface points; x: (N, 3) points; l: (N, S, 3) directions.
-        visibility: if False, every ray sees the env map (no shadows).
-
-    Returns:
-        (N, S, 3) linear radiance.
+        geom: the mesh (unit frame).
+        material: ``(tri (N,), bary (N, 3), x (N, 3)) -> (albedo (N, 3), metallic (N, 1),
+            roughness (N, 1))`` (e.g. the learnable field).
+        radiance: ``(M, 3) dirs -> (M, 3)`` env radiance (differentiable for training).
+        sampler: env-map importance sampler (detached), or None.
+        mode: "traced", "splitsum" or "off" (occluded rays carry 0); None = no visibility casts
+            at all (every secondary ray sees the env map).
+        tail: the split-sum estimate ending traced paths (and the "splitsum" mode), or None (0).
+        bounces: :class:`Bounces` of the "traced" mode.
+        generator: random stream.
+        strategy: :func:`shade_mc`'s MIS heuristic ("mis" power, "balance"); the counts per
+            strategy are given to :meth:`shade`.
     """
-    from voxnero.render.envmap import envmap_lookup
 
-    N, S = l.shape[:2]
-    Li = envmap_lookup(env_image, l)
-    if not visibility:
-        return Li
-    o = geom.spawn(tri[:, None].expand(N, S), x[:, None].expand(N, S, 3), l)
-    o, lf = o.reshape(-1, 3), l.reshape(-1, 3)
-    occ = geom.occluded(o, lf).to(l.device)
-    if not occ.any():
-        return Li
-    Li = Li.reshape(-1, 3)
-    if indirect is None:
-        Li = torch.where(occ[:, None], torch.zeros_like(Li), Li)
-        return Li.view(N, S, 3)
-    idx = occ.nonzero()[:, 0]
-    _, htri, hbary = geom.cast(o[idx], lf[idx])
-    ok = htri >= 0
-    idx, htri, hbary = idx[ok], htri[ok].to(l.device), hbary[ok].to(l.device)
-    hx = geom.points_at(htri, hbary)
-    hn = geom.normals_at(htri, hbary)
-    a, m, r = field(htri, hbary, hx)
-    Lind = indirect.radiance(hn, -lf[idx], a, m, r)
-    Li = Li.clone()
-    Li[occ] = 0.0
-    Li = Li.index_put((idx,), Lind)
-    return Li.view(N, S, 3)
+    def __init__(self, geom: Geometry, material, radiance, sampler: EnvMap | None,
+                 mode: str | None, tail: IndirectLight | None = None,
+                 bounces: Bounces | None = None, generator: torch.Generator | None = None,
+                 strategy: str = "mis"):
+        self.strategy = strategy
+        self.geom, self.material, self.radiance, self.sampler = geom, material, radiance, sampler
+        self.mode, self.tail = mode, tail
+        self.bounces = bounces or Bounces()
+        self.gen = generator
+        self.stats = {"secondary": 0, "hits": 0}
+
+    @property
+    def max_depth(self) -> int:
+        return self.bounces.traced + self.bounces.rr
+
+    def shade(self, tri: Tensor, bary: Tensor, x: Tensor, n: Tensor, v: Tensor,
+              spp: Strategies, depth: int = 0,
+              patterns: list[Tensor | None] | None = None) -> Tensor:
+        """Outgoing radiance of surface points toward v.
+
+        Args:
+            tri: (N,) triangles; bary: (N, 3); x: (N, 3) points; n: (N, 3) unit shading
+                normals; v: (N, 3) unit directions toward the viewer (or the previous vertex).
+            spp: samples per strategy.
+            depth: 0 for primary hits, k for the k-th inter-reflection bounce.
+            patterns: uniform points per strategy (see ``sample_directions``).
+
+        Returns:
+            (N, 3) linear radiance.
+        """
+        g = self.geom
+        albedo, metallic, roughness = self.material(tri, bary, x)
+        # an interpolated normal may face away from the viewer (silhouettes, secondary hits):
+        # bend it so that n.v >= 1e-3, else the BRDF is 0 there and such points turn black
+        nv = (n * v).sum(-1, keepdim=True)
+        n = torch.nn.functional.normalize(n + (1e-3 - nv).clamp_min(0.0) * v, dim=-1)
+        visibility = indirect = spawn = None
+        if self.mode is not None:
+            def spawn(i: Tensor, d: Tensor) -> Tensor:
+                return g.spawn(tri[i], x[i].detach(), d)
+
+            def visibility(o: Tensor, d: Tensor) -> Tensor:
+                return ~g.occluded(o, d)
+
+            if self.mode == "traced":
+                def indirect(o: Tensor, d: Tensor) -> Tensor:
+                    return self.incoming(o, d, depth + 1)
+            elif self.mode == "splitsum" and self.tail is not None:
+                def indirect(o: Tensor, d: Tensor) -> Tensor:
+                    return self._tail(o, d)
+        return shade_mc(x, n, v, albedo, metallic, roughness, self.radiance, 0, visibility,
+                        indirect, "balance" if self.strategy == "balance" else "mis",
+                        generator=self.gen, counts=spp.counts, sampler=self.sampler,
+                        patterns=patterns, spawn=spawn)
+
+    def _hits(self, o: Tensor, d: Tensor):
+        _, tri, bary = self.geom.cast(o, d)
+        hit = tri >= 0
+        self.stats["secondary"] += int(o.shape[0])
+        self.stats["hits"] += int(hit.sum())
+        return tri, bary, hit.nonzero()[:, 0]
+
+    def _tail(self, o: Tensor, d: Tensor) -> Tensor:
+        """Split-sum estimate of the radiance along rays that hit the mesh (env on a miss)."""
+        tri, bary, idx = self._hits(o, d)
+        out = self.radiance(d)
+        if idx.numel() == 0:
+            return out
+        t, b = tri[idx], bary[idx]
+        if self.tail is None:
+            return out.index_put((idx,), torch.zeros(idx.numel(), 3, device=out.device,
+                                                     dtype=out.dtype))
+        a, m, r = self.material(t, b, self.geom.points_at(t, b))
+        val = self.tail.radiance(self.geom.normals_at(t, b), -d[idx], a, m, r)
+        return out.index_put((idx,), val.to(out.dtype))
+
+    def incoming(self, o: Tensor, d: Tensor, depth: int) -> Tensor:
+        """Radiance arriving at origins o from directions d (rays the visibility test found
+        blocked): the hit shaded at bounce ``depth`` (with Russian roulette past
+        ``bounces.traced``), the tail past the last bounce; env along rays that miss after all.
+
+        Args:
+            o: (M, 3) origins; d: (M, 3) unit directions; depth: bounce number (>= 1).
+
+        Returns:
+            (M, 3) linear radiance.
+        """
+        b = self.bounces
+        if depth > self.max_depth:
+            return self._tail(o, d)
+        keep = None
+        if depth > b.traced:  # Russian roulette: continue a fraction ``survive`` of the paths
+            u = torch.rand(o.shape[0], generator=self.gen,
+                           device=self.gen.device if self.gen is not None else "cpu")
+            keep = (u < b.survive).to(o.device)
+        tri, bary, idx = self._hits(o, d)
+        out = self.radiance(d)
+        if idx.numel() == 0:
+            return out
+        if keep is not None:
+            dead = idx[~keep[idx]]
+            idx = idx[keep[idx]]
+            if dead.numel():
+                out = out.index_put((dead,), torch.zeros(dead.numel(), 3, device=out.device,
+                                                         dtype=out.dtype))
+            if idx.numel() == 0:
+                return out
+        t, bb = tri[idx], bary[idx]
+        x, n = self.geom.points_at(t, bb), self.geom.normals_at(t, bb)
+        val = self.shade(t, bb, x, n, -d[idx], b.spp, depth)
+        if keep is not None:
+            val = val / b.survive
+        return out.index_put((idx,), val.to(out.dtype))
 
 
 def shade(geom: Geometry, field, env_image: Tensor, tri: Tensor, bary: Tensor, x: Tensor,
           n: Tensor, v: Tensor, spp: Strategies, indirect: IndirectLight | None = None,
           env=None, visibility: bool = True, generator: torch.Generator | None = None,
-          patterns: list[Tensor | None] | None = None) -> Tensor:
-    """Outgoing radiance L_o(x, v) of surface points, Monte Carlo with MIS (see module).
+          patterns: list[Tensor | None] | None = None, bounces: Bounces | None = None
+          ) -> Tensor:
+    """Outgoing radiance L_o(x, v) of surface points (see the module).
 
     Args:
         geom: the mesh (unit frame); field: material field ``(tri, bary, x) -> (albedo (N, 3),
@@ -194,22 +246,24 @@ def shade(geom: Geometry, field, env_image: Tensor, tri: Tensor, bary: Tensor, x
         tri: (N,) triangles; bary: (N, 3) barycentrics; x: (N, 3) points; n: (N, 3) unit
             shading normals; v: (N, 3) unit directions toward the viewer.
         spp: samples per strategy.
-        indirect: indirect light model or None (occluded secondary rays carry 0).
+        indirect: split-sum estimate of the radiance of secondary hits (ends traced paths), or
+            None (0).
         env: env-map sampler for the env strategy (:func:`env_sampler`) or None.
         visibility: cast secondary rays (shadows / indirect); False treats all as escaping.
         generator: random stream.
-        patterns: see :func:`sample_directions`.
+        patterns: uniform points per strategy (see :func:`sample_directions`).
+        bounces: trace inter-reflections on the mesh (:class:`Bounces`); None: the ``indirect``
+            estimate at the first secondary hit.
 
     Returns:
         (N, 3) linear radiance.
     """
-    albedo, metallic, roughness = field(tri, bary, x)
-    alpha = roughness_to_alpha(roughness.detach())
-    l, wop, _ = sample_directions(n, v, alpha, spp, env, generator, patterns)
-    S = l.shape[1]
-    nS = n[:, None].expand_as(l)
-    f = brdf_eval(nS, v[:, None].expand_as(l), l, albedo[:, None].expand(-1, S, 3),
-                  metallic[:, None].expand(-1, S, 1), roughness[:, None].expand(-1, S, 1))
-    cos = (nS * l).sum(-1).clamp_min(0.0)
-    Li = incident_radiance(geom, field, env_image, indirect, tri, x, l, visibility)
-    return (f * Li * (cos * wop)[..., None]).sum(1)
+    if not visibility:
+        mode = None
+    elif bounces is not None:
+        mode = "traced"
+    else:
+        mode = "splitsum" if indirect is not None else "off"
+    paths = Paths(geom, field, lambda d: envmap_lookup(env_image, d), env, mode, indirect,
+                  bounces, generator)
+    return paths.shade(tri, bary, x, n, v, spp, 0, patterns)

@@ -31,7 +31,7 @@ from voxnero.io.color import linear_to_srgb
 from voxnero.material.config import MaterialConfig
 from voxnero.material.field import make_field
 from voxnero.material.lights import LOG_MAX, LOG_MIN, IndirectLight, init_from_background
-from voxnero.material.render import Strategies, env_sampler, shade
+from voxnero.material.render import Bounces, Strategies, env_sampler, shade
 from voxnero.material.surface import Geometry, SurfaceCache
 from voxnero.render.latlong import envmap_lookup
 from voxnero.render.sampling import sample_cosine
@@ -70,26 +70,32 @@ SECONDARY_HIT_MIN = 1e-3
 nor inter-reflection. Those rays are all that the casts and the indirect estimate change, so
 the rendered light moves by about this fraction on average, far under the Monte Carlo noise of
 a training estimate (a few samples per strategy). Marching-cubes meshes of convex objects
-measure 0–0.07 % (facet-scale dents), self-occluding ones 3.9–4.6 % (the dev torus)."""
+measure 0–0.07 % (facet-scale dents), self-occluding ones 3.9–4.6 % (the dev torus), the
+corpus's self-reflecting objects up to 18 % (docs/STAGE2.md)."""
 
 
-def decide_secondary(fraction: float, visibility: Any, indirect: str) -> tuple[bool, bool]:
+def decide_secondary(fraction: float, visibility: Any, indirect: str) -> tuple[str, bool]:
     """Stage-2 light model from the measured secondary-ray hit fraction.
 
     Args:
         fraction: :func:`needs_indirect` (0 when ``visibility`` is off: nothing measured).
         visibility: ``render.visibility`` ("auto", "on"/True, "off"/False).
-        indirect: ``light.indirect`` ("auto", "splitsum", "off").
+        indirect: ``light.indirect`` ("auto", "traced", "splitsum", "off").
 
     Returns:
-        ``(use_indirect, visibility_casts)``: "auto" turns each on at
-        :data:`SECONDARY_HIT_MIN` or more; forced settings win.
+        ``(indirect_model, visibility_casts)``: the model of light along secondary rays that hit
+        the object ("traced", "splitsum" or "off") and whether rays are cast at all. "auto"
+        traces inter-reflections and casts at :data:`SECONDARY_HIT_MIN` or more (the traced
+        estimate is unbiased; the split-sum one, a bounce-free approximation, stays a forced
+        choice); forced settings win.
     """
     seen = fraction >= SECONDARY_HIT_MIN
-    use_indirect = indirect == "splitsum" or (indirect == "auto" and seen)
+    if indirect == "auto":
+        model = "traced" if seen else "off"
+    else:
+        model = indirect
     casts = visibility in ("on", True) or (visibility == "auto" and seen)
-    return use_indirect, casts
-
+    return model, casts
 
 class MaterialTrainer:
     """Fits the material field and the env map to the cached training pixels."""
@@ -127,12 +133,24 @@ class MaterialTrainer:
         vis = cfg.render.visibility
         frac = needs_indirect(geom, cache, generator=self.gen) if vis not in ("off", False) \
             else 0.0
-        self.use_indirect, self.visibility = decide_secondary(frac, vis, cfg.light.indirect)
+        self.indirect_model, self.visibility = decide_secondary(frac, vis, cfg.light.indirect)
+        self.use_indirect = self.visibility and self.indirect_model != "off"
+        lc = cfg.light
+        self.bounces = Bounces(lc.bounces, lc.rr_bounces, lc.rr_survive,
+                               Strategies(lc.bounce_spp, lc.bounce_spp, lc.bounce_spp)) \
+            if self.indirect_model == "traced" else None
         self.decisions = {"secondary_hit_fraction": frac, "indirect": self.use_indirect,
+                          "indirect_model": self.indirect_model if self.visibility else "off",
                           "visibility_casts": self.visibility,
                           "env_sampling": True}
+        if self.bounces is not None:
+            self.decisions["bounces"] = {"traced": lc.bounces, "russian_roulette": lc.rr_bounces,
+                                         "survive": lc.rr_survive, "spp": lc.bounce_spp}
+        what = {"traced": f"traced on the mesh ({lc.bounces} bounces, then up to "
+                          f"{lc.rr_bounces} by Russian roulette)",
+                "splitsum": "split-sum estimate", "off": "off"}[self.indirect_model]
         log(f"[material] secondary rays hitting the object: {100 * frac:.2f} % -> indirect "
-            f"light {'on' if self.use_indirect else 'off'}, visibility casts "
+            f"light {what if self.visibility else 'off'}, visibility casts "
             f"{'on' if self.visibility else 'off'}; env-map importance sampling on")
         self.step = 0
         self.sources = dict(sources or {})
@@ -176,7 +194,8 @@ class MaterialTrainer:
         c = self.cache
         if not self.jitter:
             return shade(self.geom, self.field, img, c.tri[idx], c.bary[idx], c.x[idx], c.n[idx],
-                         c.v[idx], self.spp, indirect, sampler, self.visibility, self.gen)
+                         c.v[idx], self.spp, indirect, sampler, self.visibility, self.gen,
+                         bounces=self.bounces)
         ci = idx.cpu()
         pix = c.pix[idx].cpu() + torch.rand(ci.shape[0], 2, generator=self.gen) - 0.5
         o, d = pixel_rays(c.cameras, c.cam[ci].cpu(), pix)
@@ -186,7 +205,7 @@ class MaterialTrainer:
         t, b = tri[h], bary[h]
         x, n = self.geom.points_at(t, b), self.geom.normals_at(t, b)
         lo = shade(self.geom, self.field, img, t, b, x, n, -d[h], self.spp, indirect, sampler,
-                   self.visibility, self.gen)
+                   self.visibility, self.gen, bounces=self.bounces)
         return envmap_lookup(img, d).index_put((h,), lo)
 
     def loss_terms(self) -> dict[str, torch.Tensor]:

@@ -3,16 +3,13 @@
 Per pixel, ``spp`` primary rays through stratified jittered positions in the pixel footprint
 (the box filter of the dev data) are cast against the mesh with Open3D
 (:class:`voxnero.material.surface.Geometry`, the stage-2 ray caster). A ray that misses shows
-the env map along it (the environment is at infinity). A hit is shaded with the shading core's
-MIS estimator :func:`voxnero.render.estimator.shade_mc` (cosine + GGX-VNDF + env-map samples,
-power heuristic) with Open3D visibility; light arriving along an occluded direction is the
-radiance of the surface it hits, shaded the same way (recursively, up to ``bounces`` surface
-interactions); after the last bounce it is the stage-2 split-sum estimate
-(:class:`voxnero.material.lights.IndirectLight`, ``tail="splitsum"``) or 0 (``tail="none"``).
-
-Why not ``voxnero.material.render.shade``: its indirect hook receives no hit position, so it
-cannot continue a path; this thin driver calls the shading core directly and shares the
-ray caster, the indirect-light tail and the BRDF with stage 2.
+the env map along it (the environment is at infinity). A hit is shaded by stage 2's light
+paths on the mesh (:class:`voxnero.material.render.Paths`): the shading core's one MIS estimator
+:func:`voxnero.render.estimator.shade_mc` (cosine + GGX-VNDF + env-map samples, power heuristic)
+with Open3D visibility; light arriving along an occluded direction is the radiance of the
+surface it hits, shaded the same way (up to ``bounces`` surface interactions); after the last
+bounce it is the stage-2 split-sum estimate (:class:`voxnero.material.lights.IndirectLight`,
+``tail="splitsum"``) or 0 (``tail="none"``). Stage 2 trains and evaluates with the same code.
 
 Frames: the asset lives in the scene's input frame; rendering happens in the asset's own unit
 frame (``Normalisation(centre of the bounding box, bounding radius)``, so ray offsets are
@@ -172,7 +169,9 @@ class Relighter:
     def __init__(self, asset, env, cfg: RelightConfig, device: torch.device | str = "cpu"):
         from voxnero.data.scene import Normalisation
         from voxnero.material.lights import IndirectLight
+        from voxnero.material.render import Bounces, Paths, Strategies
         from voxnero.material.surface import Geometry
+        from voxnero.render.estimator import split_counts
 
         self.asset, self.env, self.cfg = asset, env, cfg
         self.device = torch.device(device)
@@ -181,72 +180,40 @@ class Relighter:
         self.geom = Geometry.from_legacy(asset.legacy_mesh(self.norm))
         self.tail = IndirectLight(world_frame_map(env)) if cfg.tail == "splitsum" else None
         self.exposure = 2.0 ** cfg.exposure
+        self.spp = Strategies(*split_counts(cfg.dirs, cfg.strategy, True))
+        bounce_spp = Strategies(*split_counts(cfg.bounce_dirs, cfg.strategy, True))
+        mode = "traced" if cfg.bounces > 1 or self.tail is not None else "off"
+        # bounces counts surface interactions: cfg.bounces - 1 of them after the primary hit
+        self.paths = Paths(self.geom.to(self.device), self._material, env.lookup, env, mode,
+                           self.tail, Bounces(cfg.bounces - 1, 0, 1.0, bounce_spp),
+                           strategy=cfg.strategy)
 
     # -- shading
-    def _material(self, tri: Tensor, bary: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def _material(self, tri: Tensor, bary: Tensor, x: Tensor | None = None
+                  ) -> tuple[Tensor, Tensor, Tensor]:
         a, m, r = self.asset.material_at(tri.cpu(), bary.cpu())
         return a.to(self.device), m.to(self.device), r.to(self.device)
 
     def shade_hits(self, tri: Tensor, bary: Tensor, v: Tensor, depth: int,
                    generator: torch.Generator | None = None) -> Tensor:
-        """Outgoing radiance of surface hits toward ``v``.
+        """Outgoing radiance of surface hits toward ``v`` (stage 2's :class:`Paths`: the
+        shading core's estimator, Open3D visibility, traced bounces, then the tail).
 
         Args:
-            tri: (N,) long hit triangles; bary: (N, 3) barycentrics (CPU).
+            tri: (N,) long hit triangles; bary: (N, 3) barycentrics.
             v: (N, 3) unit directions toward the viewer / previous vertex.
-            depth: 0 for primary hits (sets dirs vs bounce_dirs and the recursion depth).
+            depth: 0 for primary hits.
             generator: random stream.
 
         Returns:
             (N, 3) linear radiance (before exposure).
         """
-        from voxnero.material.surface import RAY_EPS
-        from voxnero.render.estimator import shade_mc
-
-        dev = self.device
-        g = self.geom
-        x = g.points_at(tri, bary).to(dev)
-        n = g.normals_at(tri, bary).to(dev)
-        v = v.to(dev)
-        # interpolated normals can face away from the viewer at silhouettes: bend them so that
-        # n.v >= 1e-3 (else the BRDF is 0 there and such pixels turn black)
-        nv = (n * v).sum(-1, keepdim=True)
-        n = torch.nn.functional.normalize(n + (1e-3 - nv).clamp_min(0.0) * v, dim=-1)
-        nf = g.face_normals[tri].to(dev)
-        nf = nf * torch.where((nf * n).sum(-1, keepdim=True) < 0, -1.0, 1.0)
-        xo = x + RAY_EPS * nf  # secondary-ray origins off the surface, on the lit side
-        a, m, r = self._material(tri, bary)
-
-        def visibility(o: Tensor, d: Tensor) -> Tensor:
-            return (~g.occluded(o.cpu(), d.cpu())).to(dev)
-
-        def indirect(o: Tensor, d: Tensor) -> Tensor:
-            return self._incoming(o, d, depth + 1, generator)
-
-        n_dirs = self.cfg.dirs if depth == 0 else self.cfg.bounce_dirs
-        use_ind = depth + 1 < self.cfg.bounces or self.tail is not None
-        return shade_mc(xo, n, v, a, m, r, self.env, n_dirs, visibility=visibility,
-                        indirect=indirect if use_ind else None, strategy=self.cfg.strategy,
-                        generator=generator, ray_offset=0.0)
-
-    def _incoming(self, o: Tensor, d: Tensor, depth: int,
-                  generator: torch.Generator | None) -> Tensor:
-        """Radiance arriving at o from direction d (rays known to hit the mesh)."""
-        _, tri, bary = self.geom.cast(o.cpu(), d.cpu())
-        out = self.env.lookup(d.to(self.device))
-        hit = tri >= 0
-        if not hit.any():
-            return out
-        idx = hit.nonzero()[:, 0]
-        t, b = tri[idx], bary[idx]
-        wo = -d[idx.to(d.device)].to(self.device)
-        if depth < self.cfg.bounces:
-            val = self.shade_hits(t, b, wo, depth, generator)
-        else:
-            n = self.geom.normals_at(t, b).to(self.device)
-            a, m, r = self._material(t, b)
-            val = self.tail.radiance(n, wo, a, m, r)
-        return out.index_put((idx.to(self.device),), val)
+        g = self.paths.geom
+        tri, bary = tri.to(self.device), bary.to(self.device)
+        x, n = g.points_at(tri, bary), g.normals_at(tri, bary)
+        self.paths.gen = generator
+        spp = self.spp if depth == 0 else self.paths.bounces.spp
+        return self.paths.shade(tri, bary, x, n, v.to(self.device), spp, depth)
 
     def radiance(self, o: Tensor, d: Tensor, generator: torch.Generator | None = None
                  ) -> tuple[Tensor, Tensor]:
