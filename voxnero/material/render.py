@@ -62,13 +62,18 @@ class Bounces:
         rr: further bounces each continued with probability ``survive`` (Russian roulette,
             weight 1 / survive: unbiased) before the tail ends the path.
         survive: Russian-roulette survival probability.
-        spp: samples per strategy at every secondary hit.
+        spp: samples per strategy at every secondary hit; with ``one_sample`` their shares
+            of the ONE direction drawn there (one-sample MIS).
+        one_sample: one direction per secondary hit: a path never branches, so a bounce
+            costs one ray per path (stage 2); False: every strategy's samples (relight's
+            ``bounce_dirs``).
     """
 
     traced: int = 2
     rr: int = 2
     survive: float = 0.5
     spp: Strategies = field(default_factory=lambda: Strategies(1, 1, 1))
+    one_sample: bool = True
 
 
 def env_sampler(image: Tensor) -> EnvMap:
@@ -170,7 +175,8 @@ class Paths:
         return shade_mc(x, n, v, albedo, metallic, roughness, self.radiance, 0, visibility,
                         indirect, "balance" if self.strategy == "balance" else "mis",
                         generator=self.gen, counts=spp.counts, sampler=self.sampler,
-                        patterns=patterns, spawn=spawn)
+                        patterns=patterns, spawn=spawn,
+                        one_sample=depth > 0 and self.bounces.one_sample)
 
     def _hits(self, o: Tensor, d: Tensor):
         _, tri, bary = self.geom.cast(o, d)

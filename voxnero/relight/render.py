@@ -185,7 +185,8 @@ class Relighter:
         mode = "traced" if cfg.bounces > 1 or self.tail is not None else "off"
         # bounces counts surface interactions: cfg.bounces - 1 of them after the primary hit
         self.paths = Paths(self.geom.to(self.device), self._material, env.lookup, env, mode,
-                           self.tail, Bounces(cfg.bounces - 1, 0, 1.0, bounce_spp),
+                           self.tail,
+                           Bounces(cfg.bounces - 1, 0, 1.0, bounce_spp, one_sample=False),
                            strategy=cfg.strategy)
 
     # -- shading

@@ -141,6 +141,54 @@ def sample_directions(n: Tensor, v: Tensor, alpha: Tensor, counts: Sequence[int]
     return l, wop.view(N, S)
 
 
+def sample_one(n: Tensor, v: Tensor, alpha: Tensor, counts: Sequence[int],
+               sampler: EnvMap | None = None, generator: torch.Generator | None = None
+               ) -> tuple[Tensor, Tensor]:
+    """One direction per point by one-sample MIS (Veach 1997, sec. 9.2.4): strategy k is
+    chosen with probability q_k = c_k / sum(c), and the sample weighs 1 / sum_k q_k p_k(l)
+    (the balance heuristic; unbiased). Used where paths must not branch (traced bounces).
+
+    Args:
+        n, v, alpha, counts, sampler, generator: as :func:`sample_directions` (all detached).
+
+    Returns:
+        l (N, 1, 3) unit directions and wop (N, 1).
+    """
+    n, v, alpha = n.detach(), v.detach(), alpha.detach()
+    N = n.shape[0]
+    c = torch.tensor([float(counts[0]), float(counts[1]),
+                      float(counts[2]) if sampler is not None else 0.0], device=n.device)
+    q = c / c.sum()
+    gdev = generator.device if generator is not None else torch.device("cpu")
+    with torch.no_grad():
+        u = torch.rand((N, 3), generator=generator, device=gdev).to(n.device, n.dtype)
+        pick = torch.searchsorted(torch.cumsum(q, 0)[:-1].contiguous(),
+                                  u[:, 2].contiguous(), right=True)
+        pick = torch.where(q[pick] > 0, pick, q.argmax().expand_as(pick))
+        uv = u[:, :2].clamp(0.0, 1.0 - 1e-7)
+        l = torch.zeros(N, 3, device=n.device, dtype=n.dtype)
+        a = alpha.reshape(-1)
+        for k in range(3):
+            sel = (pick == k).nonzero()[:, 0]
+            if sel.numel() == 0:
+                continue
+            if k == 0:
+                l[sel] = sample_cosine(uv[sel], n[sel])[0]
+            elif k == 1:
+                l[sel] = sample_ggx_vndf(uv[sel], n[sel], v[sel], a[sel])[0]
+            else:
+                l[sel] = sampler.sample(uv[sel])[0].to(n.device, n.dtype)
+        mix = torch.zeros(N, device=n.device, dtype=n.dtype)
+        if q[0] > 0:
+            mix = mix + q[0] * pdf_cosine(n, l)
+        if q[1] > 0:
+            mix = mix + q[1] * pdf_ggx_vndf(n, v, l, a)
+        if q[2] > 0:
+            mix = mix + q[2] * sampler.pdf(l).to(n.dtype).reshape(-1)
+        wop = torch.where(mix > 0, 1.0 / mix.clamp_min(1e-30), torch.zeros_like(mix))
+    return l[:, None], wop[:, None]
+
+
 def shade_mc(
     x: Tensor,
     n: Tensor,
@@ -160,6 +208,7 @@ def shade_mc(
     sampler: EnvMap | None = None,
     patterns: Sequence[Tensor | None] | None = None,
     spawn: Spawn | None = None,
+    one_sample: bool = False,
 ) -> Tensor:
     """Outgoing radiance toward v at surface points by MIS Monte Carlo.
 
@@ -189,6 +238,9 @@ def shade_mc(
         patterns: uniform points per strategy, see :func:`sample_directions`.
         spawn: optional callable (point index (M,), dirs (M, 3)) -> (M, 3) ray origins (e.g. an
             offset along the face normal on the side of the ray).
+        one_sample: draw ONE direction per point, its strategy chosen in proportion to
+            ``counts`` (:func:`sample_one`), instead of all of them: a path that does not
+            branch (traced bounces).
 
     Returns:
         (N, 3) linear radiance.
@@ -212,7 +264,10 @@ def shade_mc(
     n = safe_normalize(n)
     v = safe_normalize(v)
     alpha = roughness_to_alpha(roughness.detach())
-    l, wop = sample_directions(n, v, alpha, counts, sampler, generator, patterns, beta)
+    if one_sample:
+        l, wop = sample_one(n, v, alpha, counts, sampler, generator)
+    else:
+        l, wop = sample_directions(n, v, alpha, counts, sampler, generator, patterns, beta)
     S = l.shape[1]
     lf = l.reshape(-1, 3)
     with torch.no_grad():
