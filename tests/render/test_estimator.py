@@ -294,6 +294,12 @@ def test_one_sample_mis_agrees_with_all_strategies(r, m):
     many = shade_mc(*args, env, counts=(4, 4, 4), generator=g)[:, 0].double()
     se = (one.var() / N + many.var() / N).sqrt()
     assert abs(float(one.mean() - many.mean())) < 4 * float(se) + 1e-4, (one.mean(), many.mean())
+    # any per-point shares (> 0) leave it unbiased
+    shares = torch.rand(N, 3, generator=g) + 0.05
+    mixed = shade_mc(*args, env, counts=(1, 1, 1), one_sample=True, shares=shares,
+                     generator=g)[:, 0].double()
+    se = (mixed.var() / N + many.var() / N).sqrt()
+    assert abs(float(mixed.mean() - many.mean())) < 4 * float(se) + 1e-4
     if m == 0.0:
         white = shade_mc(torch.zeros(N, 3), n, v, torch.ones(N, 3), torch.zeros(N, 1),
                          torch.full((N, 1), r), lambda d: torch.ones_like(d), counts=(1, 1, 0),

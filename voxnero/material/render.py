@@ -103,6 +103,31 @@ def sample_directions(n: Tensor, v: Tensor, alpha: Tensor, spp: Strategies, env=
     return l, wop, counts
 
 
+def material_shares(albedo: Tensor, metallic: Tensor, spp: Strategies) -> Tensor:
+    """Shares of (cosine, GGX, env) of the one direction drawn at a secondary hit.
+
+    In proportion to the lobes' reflectance at normal incidence: the diffuse lobe
+    (1 − m)(1 − 0.04) mean(albedo) goes to the cosine and env strategies (in the ratio of
+    ``spp``), the specular lobe mean(F0) to GGX; so a chrome hit draws GGX directions only
+    (no wasted cosine or env samples on a mirror) and a matte one mostly cosine/env ones.
+
+    Args:
+        albedo: (N, 3); metallic: (N, 1); spp: the strategies' base counts.
+
+    Returns:
+        (N, 3) non-negative shares.
+    """
+    from voxnero.render.brdf import DIELECTRIC_F0
+
+    a = albedo.detach().mean(-1, keepdim=True)
+    m = metallic.detach()
+    spec = DIELECTRIC_F0 * (1 - m) + m * a
+    diff = (1 - m) * (1 - DIELECTRIC_F0) * a
+    tot = max(spp.cos + spp.env, 1)
+    return torch.cat([diff * spp.cos / tot, spec * float(spp.ggx > 0), diff * spp.env / tot],
+                     -1) + 1e-3
+
+
 class Paths:
     """Light paths on a fixed mesh: shades surface points with :func:`shade_mc`, casting
     secondary rays with Open3D and estimating what they bring (see the module).
@@ -172,11 +197,13 @@ class Paths:
             elif self.mode == "splitsum" and self.tail is not None:
                 def indirect(o: Tensor, d: Tensor) -> Tensor:
                     return self._tail(o, d)
+        one = depth > 0 and self.bounces.one_sample
         return shade_mc(x, n, v, albedo, metallic, roughness, self.radiance, 0, visibility,
                         indirect, "balance" if self.strategy == "balance" else "mis",
                         generator=self.gen, counts=spp.counts, sampler=self.sampler,
-                        patterns=patterns, spawn=spawn,
-                        one_sample=depth > 0 and self.bounces.one_sample)
+                        patterns=patterns, spawn=spawn, one_sample=one,
+                        shares=material_shares(albedo, metallic, self.bounces.spp) if one
+                        else None)
 
     def _hits(self, o: Tensor, d: Tensor):
         _, tri, bary = self.geom.cast(o, d)

@@ -142,29 +142,41 @@ def sample_directions(n: Tensor, v: Tensor, alpha: Tensor, counts: Sequence[int]
 
 
 def sample_one(n: Tensor, v: Tensor, alpha: Tensor, counts: Sequence[int],
-               sampler: EnvMap | None = None, generator: torch.Generator | None = None
-               ) -> tuple[Tensor, Tensor]:
+               sampler: EnvMap | None = None, generator: torch.Generator | None = None,
+               shares: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """One direction per point by one-sample MIS (Veach 1997, sec. 9.2.4): strategy k is
-    chosen with probability q_k = c_k / sum(c), and the sample weighs 1 / sum_k q_k p_k(l)
-    (the balance heuristic; unbiased). Used where paths must not branch (traced bounces).
+    chosen with probability q_k, and the sample weighs 1 / sum_k q_k p_k(l) (the balance
+    heuristic; unbiased for any q that is > 0 wherever the integrand is). Used where paths
+    must not branch (traced bounces).
 
     Args:
-        n, v, alpha, counts, sampler, generator: as :func:`sample_directions` (all detached).
+        n, v, alpha, counts, sampler, generator: as :func:`sample_directions` (all detached);
+            q_k = c_k / sum(c) unless ``shares`` is given.
+        shares: optional (N, 3) non-negative shares of (cosine, GGX, env) per point (e.g.
+            from the material: a mirror draws GGX directions only); strategies whose count
+            is 0 (or env without a sampler) get none.
 
     Returns:
         l (N, 1, 3) unit directions and wop (N, 1).
     """
     n, v, alpha = n.detach(), v.detach(), alpha.detach()
     N = n.shape[0]
-    c = torch.tensor([float(counts[0]), float(counts[1]),
-                      float(counts[2]) if sampler is not None else 0.0], device=n.device)
-    q = c / c.sum()
+    c = torch.tensor([float(counts[0] > 0), float(counts[1] > 0),
+                      float(counts[2] > 0 and sampler is not None)], device=n.device,
+                     dtype=n.dtype)
+    base = torch.tensor([float(counts[0]), float(counts[1]),
+                         float(counts[2]) if sampler is not None else 0.0], device=n.device,
+                        dtype=n.dtype)
+    q = base.expand(N, 3) if shares is None else shares.detach().to(n.dtype) * c
+    q = torch.where(q.sum(-1, keepdim=True) > 0, q, base.expand(N, 3))
+    q = q / q.sum(-1, keepdim=True)
     gdev = generator.device if generator is not None else torch.device("cpu")
     with torch.no_grad():
         u = torch.rand((N, 3), generator=generator, device=gdev).to(n.device, n.dtype)
-        pick = torch.searchsorted(torch.cumsum(q, 0)[:-1].contiguous(),
-                                  u[:, 2].contiguous(), right=True)
-        pick = torch.where(q[pick] > 0, pick, q.argmax().expand_as(pick))
+        cq = torch.cumsum(q, -1)
+        pick = (u[:, 2:3] >= cq[:, :2]).sum(-1)
+        # float rounding at the top of the cumulative sum: never a strategy with no share
+        pick = torch.where(q.gather(-1, pick[:, None])[:, 0] > 0, pick, q.argmax(-1))
         uv = u[:, :2].clamp(0.0, 1.0 - 1e-7)
         l = torch.zeros(N, 3, device=n.device, dtype=n.dtype)
         a = alpha.reshape(-1)
@@ -179,12 +191,12 @@ def sample_one(n: Tensor, v: Tensor, alpha: Tensor, counts: Sequence[int],
             else:
                 l[sel] = sampler.sample(uv[sel])[0].to(n.device, n.dtype)
         mix = torch.zeros(N, device=n.device, dtype=n.dtype)
-        if q[0] > 0:
-            mix = mix + q[0] * pdf_cosine(n, l)
-        if q[1] > 0:
-            mix = mix + q[1] * pdf_ggx_vndf(n, v, l, a)
-        if q[2] > 0:
-            mix = mix + q[2] * sampler.pdf(l).to(n.dtype).reshape(-1)
+        if c[0] > 0:
+            mix = mix + q[:, 0] * pdf_cosine(n, l)
+        if c[1] > 0:
+            mix = mix + q[:, 1] * pdf_ggx_vndf(n, v, l, a)
+        if c[2] > 0:
+            mix = mix + q[:, 2] * sampler.pdf(l).to(n.dtype).reshape(-1)
         wop = torch.where(mix > 0, 1.0 / mix.clamp_min(1e-30), torch.zeros_like(mix))
     return l[:, None], wop[:, None]
 
@@ -209,6 +221,7 @@ def shade_mc(
     patterns: Sequence[Tensor | None] | None = None,
     spawn: Spawn | None = None,
     one_sample: bool = False,
+    shares: Tensor | None = None,
 ) -> Tensor:
     """Outgoing radiance toward v at surface points by MIS Monte Carlo.
 
@@ -241,6 +254,8 @@ def shade_mc(
         one_sample: draw ONE direction per point, its strategy chosen in proportion to
             ``counts`` (:func:`sample_one`), instead of all of them: a path that does not
             branch (traced bounces).
+        shares: with ``one_sample``, optional (N, 3) shares of the strategies per point
+            (:func:`sample_one`).
 
     Returns:
         (N, 3) linear radiance.
@@ -265,7 +280,7 @@ def shade_mc(
     v = safe_normalize(v)
     alpha = roughness_to_alpha(roughness.detach())
     if one_sample:
-        l, wop = sample_one(n, v, alpha, counts, sampler, generator)
+        l, wop = sample_one(n, v, alpha, counts, sampler, generator, shares)
     else:
         l, wop = sample_directions(n, v, alpha, counts, sampler, generator, patterns, beta)
     S = l.shape[1]
