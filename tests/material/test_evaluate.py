@@ -81,3 +81,22 @@ def test_subpixels_share_one_stratified_pattern_per_pixel():
     n1, n4 = noise(1), noise(4)
     assert n1 > 0
     assert n4 < 1.3 * n1, (float(n4), float(n1))
+
+
+def test_indirect_true_is_decided_like_stage2_from_the_visible_points():
+    """``indirect=True`` (materials.json's decisions.indirect) becomes the traced model where
+    the visible points see much of the object (two facing plates: about half of the cosine
+    rays from the lower one hit the upper one) and the split-sum one where they see little
+    (a convex sphere), as ``trainer.decide_secondary`` decides it."""
+    from tests.material.test_paths import _plates
+    from voxnero.material.evaluate import indirect_model
+
+    plates = _plates()
+    n = 512
+    tri = torch.zeros(n, dtype=torch.long)
+    bary = torch.distributions.Dirichlet(torch.ones(3)).sample((n,))
+    assert indirect_model(True, plates, (tri, bary)) == "traced"
+    sphere = sphere_geometry()
+    assert indirect_model(True, sphere, (tri, bary)) == "splitsum"
+    assert indirect_model(True) == "traced" and indirect_model(False) == "off"
+    assert indirect_model("splitsum", plates, (tri, bary)) == "splitsum"

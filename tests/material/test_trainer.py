@@ -10,7 +10,12 @@ from voxnero.material.evaluate import render_view
 from voxnero.material.field import GridMaterial, VertexMaterial
 from voxnero.material.render import Strategies, env_sampler, shade
 from voxnero.material.surface import build_cache
-from voxnero.material.trainer import SECONDARY_HIT_MIN, MaterialTrainer, decide_secondary
+from voxnero.material.trainer import (
+    SECONDARY_HIT_MIN,
+    TRACED_HIT_MIN,
+    MaterialTrainer,
+    decide_secondary,
+)
 from voxnero.render.latlong import envmap_lookup
 
 TRUE = {"albedo": (0.9, 0.6, 0.3), "metallic": 1.0, "roughness": 0.25}
@@ -136,16 +141,19 @@ def test_visibility_casts_auto_skips_a_convex_mesh_and_can_be_forced():
 def test_secondary_light_model_line_and_forcing():
     """Under 0.1 % of secondary rays hitting the mesh (facet-scale dents of a convex object's
     marching-cubes mesh) "auto" models neither shadows nor indirect light; at or above it
-    inter-reflections are traced and every secondary ray is cast."""
+    every secondary ray is cast, with the split-sum estimate at a hit, and from 8 % (objects
+    that see much of themselves) inter-reflections are traced."""
     assert decide_secondary(0.0, "auto", "auto") == ("off", False)
     assert decide_secondary(0.0007, "auto", "auto") == ("off", False)  # gold preview mesh
-    assert decide_secondary(SECONDARY_HIT_MIN, "auto", "auto") == ("traced", True)
-    assert decide_secondary(0.04, "auto", "auto") == ("traced", True)  # the dev torus
+    assert decide_secondary(SECONDARY_HIT_MIN, "auto", "auto") == ("splitsum", True)
+    assert decide_secondary(0.04, "auto", "auto") == ("splitsum", True)  # the dev torus
+    assert decide_secondary(TRACED_HIT_MIN, "auto", "auto") == ("traced", True)
+    assert decide_secondary(0.127, "auto", "auto") == ("traced", True)  # the chrome knot
     assert decide_secondary(0.0, "on", "auto") == ("off", True)
     assert decide_secondary(0.0, True, "splitsum") == ("splitsum", True)
     assert decide_secondary(0.0, True, "traced") == ("traced", True)
     assert decide_secondary(0.04, "off", "off") == ("off", False)
-    assert decide_secondary(0.04, False, "auto") == ("traced", False)
+    assert decide_secondary(0.04, False, "auto") == ("splitsum", False)
 
 
 def test_visibility_casts_auto_turn_on_for_two_spheres_that_see_each_other():
@@ -165,4 +173,7 @@ def test_visibility_casts_auto_turn_on_for_two_spheres_that_see_each_other():
     tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None)
     assert tr.decisions["secondary_hit_fraction"] > 10 * SECONDARY_HIT_MIN
     assert tr.visibility and tr.use_indirect
-    assert tr.decisions["indirect_model"] == "traced" and tr.bounces is not None
+    frac = tr.decisions["secondary_hit_fraction"]
+    model = "traced" if frac >= TRACED_HIT_MIN else "splitsum"
+    assert tr.decisions["indirect_model"] == model and (tr.bounces is not None) == (
+        model == "traced")

@@ -68,7 +68,8 @@ class LightConfig:
     the hit shaded with the current material and env map by the same estimator (``bounces``
     bounces, then ``rr_bounces`` by Russian roulette, then the split-sum estimate); splitsum:
     the split-sum estimate of the outgoing radiance at the first hit (no further bounce); off:
-    black. auto: traced when at least 0.1 % of the cache's cosine secondary rays hit the mesh
+    black. auto: traced when at least 8 % of the cache's cosine secondary rays hit the mesh
+    (``trainer.TRACED_HIT_MIN``: objects that see much of themselves), splitsum from 0.1 %
     (``trainer.SECONDARY_HIT_MIN``), else off."""
     bounces: int = 2
     """Inter-reflection bounces traced after the primary hit (indirect: traced). Two: a chrome

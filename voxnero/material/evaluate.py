@@ -36,17 +36,32 @@ from voxnero.material.surface import Geometry
 from voxnero.render.latlong import envmap_lookup
 
 
-def indirect_model(indirect: bool | str) -> str:
+def indirect_model(indirect: bool | str, geom: Geometry | None = None,
+                   hits: tuple[torch.Tensor, torch.Tensor] | None = None) -> str:
     """The light model of secondary rays that hit the object: "traced", "splitsum" or "off".
 
-    ``True`` (what ``materials.json``'s ``decisions.indirect`` holds) is stage 2's model,
-    traced inter-reflections; ``False`` is "off"; a string names the model.
+    A string names the model; ``False`` is "off". ``True`` (what ``materials.json``'s
+    ``decisions.indirect`` holds: "some indirect light") is decided as stage 2 decides it
+    (:func:`voxnero.material.trainer.decide_secondary`) from the fraction of cosine rays from
+    the visible surface points ``hits`` = (tri (M,), bary (M, 3)) that hit ``geom``: traced
+    from ``TRACED_HIT_MIN``, else the split-sum estimate ("traced" without ``hits``).
     """
     if isinstance(indirect, str):
         if indirect not in ("traced", "splitsum", "off"):
             raise ValueError(f"unknown indirect model {indirect!r}")
         return indirect
-    return "traced" if indirect else "off"
+    if not indirect:
+        return "off"
+    if geom is None or hits is None or hits[0].numel() == 0:
+        return "traced"
+    from types import SimpleNamespace
+
+    from voxnero.material.trainer import TRACED_HIT_MIN, needs_indirect
+
+    tri, bary = hits
+    pts = SimpleNamespace(tri=tri, x=geom.points_at(tri, bary), n=geom.normals_at(tri, bary))
+    frac = needs_indirect(geom, pts, generator=torch.Generator().manual_seed(0))
+    return "traced" if frac >= TRACED_HIT_MIN else "splitsum"
 
 
 def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: int,
@@ -83,7 +98,12 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
     env_image = env_image.to(dev)
     centre = pixel_centers(H, W).reshape(-1, 2)
     cam = torch.full((H * W,), int(index), dtype=torch.long)
-    model = indirect_model(indirect)
+    if indirect is True:  # decided from this view's visible points, as stage 2 decides it
+        o, d = pixel_rays(cameras, cam, centre)
+        _, t0, b0 = geom.cast(o.to(dev), d.to(dev))
+        model = indirect_model(True, geom, (t0[t0 >= 0], b0[t0 >= 0]))
+    else:
+        model = indirect_model(indirect)
     ind = IndirectLight(env_image) if model != "off" else None
     bnc = (bounces or Bounces()) if model == "traced" else None
     sampler = env_sampler(env_image) if spp.env else None

@@ -74,6 +74,15 @@ measure 0–0.07 % (facet-scale dents), self-occluding ones 3.9–4.6 % (the dev
 corpus's self-reflecting objects up to 18 % (docs/STAGE2.md)."""
 
 
+TRACED_HIT_MIN = 0.08
+"""Fraction of cosine secondary rays hitting the mesh from which "auto" traces inter-reflections
+instead of the split-sum estimate at the first hit. Measured with the TRUE mesh, material and
+env map (docs/STAGE2.md): the chrome knot (12.7 %) reads 27.8 dB traced against 26.6 dB
+split-sum (28.3 / 26.6 dB at 32 spp); the ceramic dev torus (4.2 %) 27.56 dB traced against
+27.83 dB split-sum at 48 spp (the one-sample bounce adds noise that its few hits do not pay
+back). Placed between the two; the corpus's other self-occluding scenes decide it too."""
+
+
 def decide_secondary(fraction: float, visibility: Any, indirect: str) -> tuple[str, bool]:
     """Stage-2 light model from the measured secondary-ray hit fraction.
 
@@ -85,13 +94,13 @@ def decide_secondary(fraction: float, visibility: Any, indirect: str) -> tuple[s
     Returns:
         ``(indirect_model, visibility_casts)``: the model of light along secondary rays that hit
         the object ("traced", "splitsum" or "off") and whether rays are cast at all. "auto"
-        traces inter-reflections and casts at :data:`SECONDARY_HIT_MIN` or more (the traced
-        estimate is unbiased; the split-sum one, a bounce-free approximation, stays a forced
-        choice); forced settings win.
+        casts at :data:`SECONDARY_HIT_MIN` or more, with the split-sum estimate at the first
+        hit, and traces inter-reflections at :data:`TRACED_HIT_MIN` or more (where the
+        split-sum was measured worse); forced settings win.
     """
     seen = fraction >= SECONDARY_HIT_MIN
     if indirect == "auto":
-        model = "traced" if seen else "off"
+        model = "traced" if fraction >= TRACED_HIT_MIN else "splitsum" if seen else "off"
     else:
         model = indirect
     casts = visibility in ("on", True) or (visibility == "auto" and seen)
