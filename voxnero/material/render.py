@@ -27,9 +27,10 @@ from torch import Tensor
 
 from voxnero.material.lights import IndirectLight
 from voxnero.material.surface import Geometry
-from voxnero.render.envmap import EnvMap, envmap_lookup
+from voxnero.render.envmap import EnvMap
 from voxnero.render.estimator import rotated_pattern, shade_mc
 from voxnero.render.estimator import sample_directions as _sample_directions
+from voxnero.render.latlong import envmap_lookup
 
 __all__ = ["Bounces", "Paths", "Strategies", "env_sampler", "rotated_pattern",
            "sample_directions", "shade"]
@@ -117,7 +118,7 @@ def material_shares(albedo: Tensor, metallic: Tensor, spp: Strategies) -> Tensor
     Returns:
         (N, 3) non-negative shares.
     """
-    from voxnero.render.brdf import DIELECTRIC_F0
+    from voxnero.render.microfacet import DIELECTRIC_F0
 
     a = albedo.detach().mean(-1, keepdim=True)
     m = metallic.detach()

@@ -29,8 +29,9 @@ from collections.abc import Callable, Sequence
 import torch
 from torch import Tensor
 
-from voxnero.render.brdf import brdf_eval, roughness_to_alpha, safe_normalize
+from voxnero.render.brdf import brdf_eval
 from voxnero.render.envmap import EnvMap
+from voxnero.render.microfacet import roughness_to_alpha, safe_normalize
 from voxnero.render.sampling import (
     pdf_cosine,
     pdf_ggx_vndf,
