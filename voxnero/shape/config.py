@@ -298,7 +298,7 @@ class ShapeConfig:
         "iters": at_least(1, BIG_COUNT), "seed": SEED, "mesh_res": at_least(8, 1024),
         "eval_mesh_res": at_least(8, 1024, also=(0,)), "fit_rays": at_least(1, BIG_COUNT),
         "ckpt_every_s": Range(0.0), "preview_every": at_least(0), "eval_every_s": Range(0.0),
-        "threads": THREADS}
+        "threads": THREADS, "radius": positive(), "center": Range(), "bbox": Range()}
     """Allowed values; every section's table is checked before ``validate`` (and so before a
     command reads its scene)."""
     FREE_ON_RESUME: ClassVar[tuple[str, ...]] = (
@@ -331,6 +331,16 @@ class ShapeConfig:
     preview_every: int = 500
     eval_every_s: float = 60.0
     """Seconds of training between Chamfer evaluations (scenes with GT only; 0 = never)."""
+    bbox: list[float] | None = None
+    """Region of interest ``[xmin, ymin, zmin, xmax, ymax, zmax]`` in the scene's input frame
+    (None: the format's own, see :mod:`voxnero.data.scene`); wins over ``center``/``radius``."""
+    center: list[float] | None = None
+    """Centre ``[x, y, z]`` of a spherical region of interest (input frame)."""
+    radius: float | None = None
+    """Radius of the region of interest (input frame units)."""
+    use_masks: bool = False
+    """Train with the capture's object masks as alpha (NeuS/IDR captures with ``mask/``).
+    Off by default: the NeRO setting has no masks; they are evaluation data."""
     threads: int = 1
     """torch CPU threads (0 = torch's default). On the shared 2-core dev machine one thread was
     2.5× faster than two under contention (docs/BENCHMARKS.md); raise it on a dedicated machine."""
