@@ -102,6 +102,18 @@ def is_forced(v: Any) -> bool:
     return v != "auto"
 
 
+# ------------------------------------------------------------------------- region of interest
+def roi_decision(scene: Any) -> Decision:
+    """The region of interest (the unit sphere of the working frame) as the loader chose it:
+    rule, centre and radius in the input frame (``scene.meta["normalisation"]``)."""
+    rec = dict(getattr(scene, "meta", {}).get("normalisation", {}) or {})
+    method = rec.pop("method", "?")
+    return Decision("region_of_interest", {"center": rec.get("center"),
+                                           "radius": rec.get("scale")},
+                    "bbox/center/radius" if "user" in method or "bbox" in method else "auto",
+                    method, rec)
+
+
 # ---------------------------------------------------------------------------------- background
 def border_evidence(images: torch.Tensor | np.ndarray, width: int = BORDER_WIDTH,
                     tol: float = BORDER_TOL) -> dict[str, Any]:
