@@ -84,3 +84,22 @@ def test_outputs_in_world_frame(tmp_path):
     # the sphere's centre maps back to the world-frame centre through the normalisation
     np.testing.assert_allclose(sc.norm.to_input(sc.norm.to_unit(SPHERE_C)), SPHERE_C)
     assert np.linalg.norm(sc.norm.to_unit(SPHERE_C)) < 1
+
+
+def test_shape_and_reconstruct_accept_the_region_of_interest(tmp_path):
+    """The keys the loaders' error messages suggest (bbox=, center=, radius=) are stage-1
+    settings, and ``reconstruct`` takes them bare."""
+    from voxnero.commands.reconstruct import split_overrides
+    from voxnero.commands.shape import _load
+    from voxnero.config import resolve
+    from voxnero.shape.config import ShapeConfig
+
+    make_idr(tmp_path, n=3)
+    cfg = resolve(ShapeConfig, "shape", "tiny", ["radius=2.5", "center=[0.1, 0.2, 0.3]"])
+    sc = _load(str(tmp_path), False, cfg)
+    np.testing.assert_allclose(sc.norm.center, [0.1, 0.2, 0.3])
+    assert sc.norm.scale == pytest.approx(2.5)
+    cfg = resolve(ShapeConfig, "shape", "tiny", ["bbox=[-1, -1, -1, 1, 1, 3]"])
+    np.testing.assert_allclose(_load(str(tmp_path), False, cfg).norm.center, [0, 0, 1])
+    shape, material = split_overrides(["bbox=[0,0,0,1,1,1]", "material.iters=3"])
+    assert shape == ["shape.bbox=[0,0,0,1,1,1]"] and material == ["material.iters=3"]
