@@ -4,7 +4,8 @@ A background at infinity gives one radiance per direction, whatever the camera: 
 different views whose rays leave the region of interest (the unit sphere) in the same direction
 show the same colour. A near background (a table, a room) does not: the same direction from two
 camera positions meets different points. So the photos' background pixels are binned by
-direction on a fine equirectangular grid (``bins_w`` × ``bins_w / 2``, 0.35° at 1024), each
+direction on an equirectangular grid (``bins_w`` × ``bins_w / 2``; by default a bin spans
+:data:`BIN_PIXELS` sampled pixels, so that a view's bin mean averages a few pixels), each
 (view, bin) is averaged, each bin's environment colour is the mean over the views that see it,
 and the evidence is how well that best "environment map" explains the pixels:
 
@@ -26,6 +27,9 @@ from typing import Any
 
 import numpy as np
 import torch
+
+BIN_PIXELS = 4
+"""Sampled pixels (at the median focal length) across one direction bin."""
 
 
 def background_rays(split, radius: float = 1.0, stride: int = 2
@@ -57,15 +61,21 @@ def background_rays(split, radius: float = 1.0, stride: int = 2
             torch.cat(cols).double().numpy())
 
 
-def distant_background_evidence(split, radius: float = 1.0, bins_w: int = 1024,
+def distant_background_evidence(split, radius: float = 1.0, bins_w: int | None = None,
                                 stride: int = 2) -> dict[str, Any]:
     """The numbers of the module docstring for one split.
+
+    ``bins_w`` (bins around the horizon) defaults to ``2π / (BIN_PIXELS · stride / f)`` with
+    ``f`` the median focal length in pixels.
 
     Returns:
         ``{"env_fit_psnr", "view_fit_psnr", "parallax_db", "background_pixels" (sampled),
         "shared_fraction" (of those in bins seen by ≥ 2 views), "bins_w", "stride"}``;
         PSNRs are None when no bin is shared by two views.
     """
+    if bins_w is None:
+        f = float(split.cameras.K[:, 0, 0].median())
+        bins_w = max(8, int(round(2 * math.pi / (BIN_PIXELS * stride / f))))
     view, d, col = background_rays(split, radius, stride)
     out: dict[str, Any] = {"background_pixels": int(len(view)), "bins_w": bins_w,
                            "stride": stride, "radius": radius}
