@@ -82,6 +82,8 @@ def evaluate_capture(mesh_path: Path, scene_path: Path, cfg, out: Path,
         images[f"silhouette_{te.names[k]}"] = (np.repeat(pred[k, ..., None], 3, -1) * 1.0,
                                                np.repeat(gt[k, ..., None], 3, -1) * 1.0)
     times = {"load": round(t_load, 3), "metrics": round(time.perf_counter() - t1, 3)}
+    for k in range(min(cfg.images, te.n)):
+        write_view_strip(out / f"views_{te.names[k]}.png", te, k, mesh, culled)
     if stage2_run is not None:
         t2 = time.perf_counter()
         psnr_rec, renders = masked_psnr_stage2(stage2_run, scene.norm, te, cfg)
@@ -94,6 +96,27 @@ def evaluate_capture(mesh_path: Path, scene_path: Path, cfg, out: Path,
     metrics["time_s"] = times
     write_report(out, metrics, images, title=f"VoxNeRO evaluation of {mesh_path} (capture)")
     return metrics
+
+
+def write_view_strip(path: Path, split, k: int, mesh, culled) -> None:
+    """``photo | normals of the mesh | normals of the culled mesh`` at view ``k`` (PNG; normals
+    in the world frame as ``0.5 n + 0.5``, grey where no surface)."""
+    from voxnero.eval.normals import render_normals
+    from voxnero.eval.views import MeshCaster
+    from voxnero.io.color import linear_to_srgb
+    from voxnero.io.images import write_png
+
+    panels = [linear_to_srgb(split.images[k].clamp(0, 1)).numpy()]
+    for m in (mesh, culled):
+        img = np.full((split.height, split.width, 3), 0.5)
+        if len(m.triangles):
+            m.compute_vertex_normals()
+            n, hit = render_normals(MeshCaster(m), split.cameras, k)
+            img[hit] = n[hit] * 0.5 + 0.5
+        panels.append(img)
+    gap = np.ones((split.height, 4, 3))
+    strip = np.concatenate([panels[0], gap, panels[1], gap, panels[2]], 1)
+    write_png(path, np.clip(strip, 0, 1))
 
 
 def _to_input(mesh, norm):
