@@ -103,3 +103,13 @@ def test_shape_and_reconstruct_accept_the_region_of_interest(tmp_path):
     np.testing.assert_allclose(_load(str(tmp_path), False, cfg).norm.center, [0, 0, 1])
     shape, material = split_overrides(["bbox=[0,0,0,1,1,1]", "material.iters=3"])
     assert shape == ["shape.bbox=[0,0,0,1,1,1]"] and material == ["material.iters=3"]
+
+
+def test_info_shows_the_format(tmp_path, capsys):
+    from voxnero.cli import main
+
+    make_idr(tmp_path, n=9)
+    assert main(["info", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "format      idr" in out and "split       test: 2 views" in out
+    assert "scale_mat" in out
