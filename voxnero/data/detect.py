@@ -23,7 +23,8 @@ from voxnero.data.scene import Scene
 from voxnero.errors import DataError
 
 LOOKED_FOR = ("transforms_train.json (Blender/NeRF-synthetic), <k>-camera.pkl (NeRO), "
-              "cameras_sphere.npz + image/ (NeuS/IDR), sparse/0/cameras.{bin,txt} + images.{bin,txt} (COLMAP)")
+              "cameras_sphere.npz + image/ (NeuS/IDR), "
+              "sparse/0/cameras.{bin,txt} + images.{bin,txt} (COLMAP)")
 """What :func:`detect_format` looks for, for error messages."""
 
 

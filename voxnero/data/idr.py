@@ -246,7 +246,7 @@ def load_idr(root: str | Path, splits=("train",), white_bg: bool = False, radius
     up = up / max(np.linalg.norm(up), 1e-12)
     meta = {"normalisation": rec, "up_method": "mean camera up (-y) vector",
             "white_bg": bool(white_bg), "n_views": n, "camera_file": cam_path.name,
-            "holdout": (f"split.json" if (root / "split.json").is_file()
+            "holdout": ("split.json" if (root / "split.json").is_file()
                         else f"views with index % {HOLDOUT_EVERY} == 0 are 'test'"),
             "masks": mask_dir.name if mask_paths else None,
             "masks_used_for_training": bool(masks_as_alpha)}
