@@ -8,8 +8,8 @@ model.obj, envmap.exr, materials.json ...). Overrides must name their stage (``s
 ``material.iters=800``); the region of interest and the masks switch of the scene,
 ``bbox=``, ``center=``, ``radius=`` and ``use_masks=``, may be given bare (they go to stage 1,
 which writes the mesh in the input frame that stage 2 reads). Re-running resumes each stage from
-its checkpoint (``--fresh``: both start over); each stage's folder is guarded as its own command guards it
-(:mod:`voxnero.safety.folder`), and ``DIR`` is locked for the run.
+its checkpoint (``--fresh``: both start over); each stage's folder is guarded as its own command
+guards it (:mod:`voxnero.safety.folder`), and ``DIR`` is locked for the run.
 """
 
 from __future__ import annotations

@@ -65,7 +65,8 @@ NEAR_PARALLAX_DB = 5.0
 of the views' own fit for the background to count as near (``parallax_db`` of
 :func:`voxnero.data.distant.distant_background_evidence`; every third pixel here, bins of four
 pixels). Measured: the dev scenes (environment at infinity) 0.6–0.7 dB, the DTU capture
-dtu_scan97 (a table under the object) 11.3 dB; tests: a textured direction-only environment vs a table."""
+dtu_scan97 (a table under the object) 11.3 dB; tests: a textured direction-only environment vs
+a table."""
 
 
 @dataclass
