@@ -48,7 +48,7 @@ def background_rays(split, radius: float = 1.0, stride: int = 2
     from voxnero.io.color import linear_to_srgb
 
     views, dirs, cols = [], [], []
-    for i in range(split.n):
+    for i in range(split.images.shape[0]):
         o, d = image_rays(split.cameras, i)
         o, d = o[::stride, ::stride].reshape(-1, 3), d[::stride, ::stride].reshape(-1, 3)
         b = (o * d).sum(-1)

@@ -207,7 +207,7 @@ def _near(ev: dict[str, Any], train: Any) -> bool:
         ev["distant"] = copy.deepcopy(hit[1])
     else:
         # about 600k pixels looked at (every third pixel of the dev scenes and of DTU's views)
-        stride = max(1, int(math.sqrt(train.n * train.height * train.width / 6e5)))
+        stride = max(1, int(math.sqrt(train.images[..., 0].numel() / 6e5)))
         ev["distant"] = distant_background_evidence(train, stride=stride)
         _PARALLAX_CACHE.clear()
         _PARALLAX_CACHE[id(train)] = (train, copy.deepcopy(ev["distant"]))
