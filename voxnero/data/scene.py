@@ -136,7 +136,7 @@ class Scene:
 
     Attributes:
         root: scene folder.
-        format: ``"blender"``, ``"nero"`` or ``"colmap"``.
+        format: ``"blender"``, ``"nero"``, ``"idr"`` or ``"colmap"``.
         splits: loaded splits by name.
         norm: input frame -> unit frame.
         up: ``(3,)`` unit world up axis (same in both frames).
