@@ -187,3 +187,28 @@ def test_image_size_must_match_camera(tmp_path):
     with pytest.raises(DataError, match="COLMAP camera says 38x30") as e:
         load_colmap(tmp_path)
     assert "img_01.png" in str(e.value)
+
+
+def test_roi_from_points_ignores_far_outliers(tmp_path):
+    """A quarter of the sparse points far away (a wall, stray tracks) must not move the region
+    of interest off the sphere: it stays within 10 % of the no-outlier one."""
+    from tests.fixtures.scenes import SPHERE_C, SPHERE_R
+    from voxnero.data.scene import choose_normalisation
+
+    b = make_colmap(tmp_path)
+    sc = load_colmap(b.root)
+    sp = sc.split("train")
+    c2w = sc.norm.c2w_to_unit(sp.cameras.c2w.double().numpy())  # back to the input frame
+    c2w[:, :3, 3] = sc.norm.to_input(sp.cameras.c2w[:, :3, 3].double().numpy())
+    rng = np.random.default_rng(1)
+    v = rng.normal(size=(400, 3))
+    pts = SPHERE_C + SPHERE_R * v / np.linalg.norm(v, axis=1, keepdims=True)
+    far = SPHERE_C + rng.uniform(-30, 30, size=(130, 3))
+    K = sp.cameras.K.double().numpy()
+    clean, _ = choose_normalisation(c2w, K, sp.width, sp.height, points=pts)
+    dirty, rec = choose_normalisation(c2w, K, sp.width, sp.height,
+                                      points=np.concatenate([pts, far]))
+    assert rec["points"] == 530 and rec["inliers"] <= 420
+    assert np.linalg.norm(dirty.center - clean.center) < 0.1 * SPHERE_R
+    assert abs(dirty.scale / clean.scale - 1) < 0.1
+    assert clean.scale > SPHERE_R  # the object is inside the region

@@ -1,4 +1,4 @@
-"""``voxnero eval``: score a mesh against a scene's ground truth.
+"""``voxnero eval``: score a mesh against a scene's ground truth, or a capture's masks.
 
 ``voxnero eval RUN_OR_MESH --scene SCENE --out DIR [key=value ...]``
 
@@ -16,14 +16,18 @@ and the exported asset (``model.glb`` textures + ``envmap.exr``) is rendered at
 ``eval.material_views`` test views with ``eval.material_spp`` samples by
 :func:`voxnero.material.evaluate.evaluate_scene`: novel-view PSNR/SSIM, relighting PSNR/SSIM,
 albedo PSNR, metallic / roughness MAE, plus ``render_<view>.png`` comparisons.
+
+A real capture without a GT mesh but with object masks (DTU in the NeuS/IDR layout) is scored by
+:mod:`voxnero.eval.silhouette`: the mesh is culled by the training views' masks (dilated by
+``eval.cull_dilate`` = 2 px), then silhouette IoU, precision and recall at the held-out views,
+and for a stage-2 run the PSNR of its renders inside the held-out masks. Which protocol applies
+is :func:`voxnero.eval.protocol.evaluate_target`'s choice.
 """
 
 from __future__ import annotations
 
 import argparse
 import textwrap
-import time
-from pathlib import Path
 
 NAME = "eval"
 HELP = "score a run against a scene's ground truth (Chamfer, normals; stage 2: images, BRDF)"
@@ -42,7 +46,10 @@ DESCRIPTION = (
     "Keys (eval section): split, voxel, pred_pixels (unambiguous|mask|all), normal_source "
     "(vertex|face), views ([0, 3, ...]), images (number of comparison PNGs), material_views "
     "(stage 2: test views rendered, default 4, -1 all), material_spp (stage 2: [cos, ggx, env] "
-    "samples, default [8, 8, 8]).")
+    "samples, default [8, 8, 8]), cull_dilate (captures: mask dilation in px, default 2).\n\n"
+    "A capture with object masks and no ground truth (NeuS/IDR, e.g. DTU): the mesh is culled by "
+    "the training views' masks, then silhouette IoU / precision / recall at the held-out views "
+    "(and PSNR inside the masks for a stage-2 run).")
 DESCRIPTION = "\n\n".join(textwrap.fill(p, 92) for p in DESCRIPTION.split("\n\n"))
 
 
@@ -57,254 +64,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "config.yaml)")
 
 
-def is_stage2_run(target: str | Path) -> bool:
-    """Whether ``target`` is a ``voxnero material`` output folder (model.glb + envmap.exr)."""
-    p = Path(target)
-    return p.is_dir() and (p / "model.glb").is_file() and (p / "envmap.exr").is_file()
-
-
-def _meta(run: Path) -> dict:
-    import yaml
-
-    cfg = run / "config.yaml"
-    if not cfg.is_file():
-        return {}
-    try:
-        return (yaml.safe_load(cfg.read_text()) or {}).get("_meta", {}) or {}
-    except yaml.YAMLError:
-        return {}
-
-
-def find_mesh(target: str | Path) -> Path:
-    """The mesh to evaluate: ``target`` itself or ``target/mesh.ply``; for a stage-2 run, the
-    stage-1 mesh it was fitted on (``_meta.mesh`` of its ``config.yaml``, same geometry as the
-    exported model) or, when that file is gone, ``target/model.glb``."""
-    from voxnero.errors import DataError
-
-    p = Path(target)
-    if p.is_dir():
-        if (p / "mesh.ply").is_file():
-            return p / "mesh.ply"
-        if is_stage2_run(p):
-            stage1 = _meta(p).get("mesh")
-            if stage1 and Path(stage1).is_file():
-                return Path(stage1)
-            return p / "model.glb"
-        raise DataError("this folder holds no mesh.ply (nor model.glb + envmap.exr)", path=p,
-                        fix="pass a finished run folder of 'voxnero shape' or 'voxnero "
-                            "material', or a mesh file")
-    if not p.exists():
-        raise DataError("no such run folder or mesh file", path=p,
-                        fix="pass a run folder holding mesh.ply or a .ply/.obj mesh")
-    return p
-
-
-def find_scene(target: str | Path, scene: str | None) -> Path:
-    """``--scene`` if given, else ``_meta.scene`` of the run's ``config.yaml``."""
-    import yaml
-
-    from voxnero.errors import ConfigError
-
-    if scene:
-        return Path(scene)
-    run = Path(target) if Path(target).is_dir() else Path(target).parent
-    cfg = run / "config.yaml"
-    if cfg.is_file():
-        try:
-            meta = (yaml.safe_load(cfg.read_text()) or {}).get("_meta", {}) or {}
-        except yaml.YAMLError:
-            meta = {}
-        if meta.get("scene"):
-            return Path(meta["scene"])
-    raise ConfigError("no scene to evaluate against", fix="pass --scene SCENE_FOLDER (a scene with "
-                      "test_mask/ and gt/test_depth/, e.g. a dev scene)")
-
-
-def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]:
-    """Image and material metrics of a stage-2 run, by :func:`voxnero.material.evaluate`.
-
-    The exported asset is what is scored: ``model.glb`` (mesh + baked textures, read by
-    :func:`voxnero.asset.load.load_asset`) and ``envmap.exr``, rendered at ``cfg.material_views``
-    test views with ``cfg.material_spp`` samples; indirect light / visibility casts as the run
-    decided (``decisions`` in ``materials.json``).
-
-    Args:
-        run: the ``voxnero material`` output folder.
-        scene_path: scene with a ``test`` split (and ``gt/test_*`` material maps, relight splits
-            if any).
-        cfg: :class:`voxnero.eval.config.EvalConfig`.
-        split: the loaded ``test`` split (cameras in the unit frame, linear images), for the
-            comparison PNGs.
-
-    Returns:
-        ``(metrics, images)``: metrics as :func:`voxnero.material.evaluate.evaluate_scene` returns
-        them (plus ``asset``, ``indirect``, ``visibility``), and ``{name: (pred, gt)}`` sRGB
-        renders of the first ``cfg.images`` evaluated views.
-    """
-    import json
-
-    import torch
-
-    from voxnero.asset.load import load_asset
-    from voxnero.data.detect import load_scene
-    from voxnero.io.color import linear_to_srgb
-    from voxnero.io.exr import read_envmap
-    from voxnero.material.evaluate import evaluate_scene, render_view
-    from voxnero.material.render import Strategies
-    from voxnero.material.surface import Geometry
-
-    asset = load_asset(run / "model.glb")
-    norm = load_scene(scene_path, splits=("test",)).norm  # the frame evaluate_scene uses
-    geom = Geometry.from_legacy(asset.legacy_mesh(norm))
-    env = torch.from_numpy(read_envmap(run / "envmap.exr")).float()
-    dec = {}
-    if (run / "materials.json").is_file():
-        dec = json.loads((run / "materials.json").read_text()).get("decisions", {}) or {}
-    indirect = bool(dec.get("indirect", True))
-    visibility = bool(dec.get("visibility_casts", True))
-    spp = Strategies(*(int(x) for x in cfg.material_spp))
-    res = evaluate_scene(scene_path, geom, asset.field, env, spp, indirect, visibility,
-                         views=cfg.material_views, out_dir=None, log=lambda _: None,
-                         subpixels=cfg.material_subpixels)
-    if not res:
-        return {"novel_view": "not evaluated: the scene has no test split"}, {}
-    res.update(asset=str(run / "model.glb"), indirect=indirect, visibility=visibility)
-    images = {}
-    gen = torch.Generator().manual_seed(1234)
-    if split is not None and split.images is not None:
-        for i in res["views"][:cfg.images]:
-            r = render_view(geom, asset.field, env, split.cameras, i, spp, indirect, visibility,
-                            generator=gen, subpixels=cfg.material_subpixels)
-            images[f"render_{split.names[i]}"] = (linear_to_srgb(r["rgb"].clamp(0, 1)),
-                                                  linear_to_srgb(split.images[i].clamp(0, 1)))
-    return res, images
-
-
-def evaluate(mesh_path: Path, scene_path: Path, cfg, out: Path,
-             stage2_run: Path | None = None) -> dict:
-    """Load everything, compute the metrics, write the report; returns the metrics dict.
-
-    Args:
-        mesh_path: mesh in the scene's input frame (``.ply``/``.obj``, or a ``model.glb``).
-        scene_path: scene with ground truth.
-        cfg: :class:`voxnero.eval.config.EvalConfig`.
-        out: report folder.
-        stage2_run: a ``voxnero material`` output folder: its image / material metrics are
-            added (:func:`stage2_metrics`).
-    """
-    from voxnero.data.detect import load_scene
-    from voxnero.errors import DataError
-    from voxnero.eval.chamfer import chamfer_at_views
-    from voxnero.eval.normals import (
-        load_gt_normals,
-        normal_error_at_views,
-        render_normals,
-    )
-    from voxnero.eval.report import write_report
-    from voxnero.eval.views import MeshCaster, iter_view_rays
-    from voxnero.mesh.io import load_mesh
-
-    t0 = time.perf_counter()
-    scene = load_scene(scene_path, splits=(cfg.split,), eval_extras=True)
-    sp = scene.split(cfg.split)
-    if sp.masks is None or sp.depth is None:
-        missing = [n for n, v in ((f"{cfg.split}_mask/", sp.masks),
-                                  (f"gt/{cfg.split}_depth/", sp.depth)) if v is None]
-        raise DataError(f"the scene has no ground truth for evaluation (missing "
-                        f"{', '.join(missing)})", path=scene_path,
-                        fix="evaluate against a scene with masks and depth of its test views "
-                            "(a dev scene or one made by 'voxnero synth')")
-    idx = list(range(sp.n)) if cfg.views is None else list(cfg.views)
-    bad = [i for i in idx if not 0 <= i < sp.n]
-    if bad or not idx:
-        from voxnero.errors import ConfigError
-
-        raise ConfigError(f"eval.views={cfg.views} must be indices in [0, {sp.n})")
-    cams, depth, masks = sp.cameras[idx], sp.depth[idx], sp.masks[idx]
-    names = [sp.names[i] for i in idx]
-    if mesh_path.suffix.lower() == ".glb":
-        from voxnero.asset.load import load_asset
-
-        mesh = load_asset(mesh_path).legacy_mesh(scene.norm)
-    else:
-        mesh = load_mesh(mesh_path, norm=scene.norm)  # unit frame, like the scene's cameras
-    t_load = time.perf_counter() - t0
-
-    metrics: dict = {"mesh": str(mesh_path), "scene": str(scene_path), "split": cfg.split,
-                     "n_views": len(idx),
-                     "mesh_stats": {"vertices": len(mesh.vertices),
-                                    "triangles": len(mesh.triangles)}}
-    t1 = time.perf_counter()
-    rays = list(iter_view_rays(cams))  # shared by both metrics
-    ch = chamfer_at_views(mesh, cams, depth, masks, norm=scene.norm, voxel=cfg.voxel,
-                          pred_pixels=cfg.pred_pixels, rays=rays)
-    ch.pop("n_views", None)
-    metrics["chamfer"] = {**ch, "voxel": cfg.voxel, "pred_pixels": cfg.pred_pixels,
-                          "frame": "input"}
-    if ch["n_pred"] == 0:
-        metrics["warning"] = ("no test ray hit the mesh: is it written in the scene's input frame "
-                              "(the frame of its cameras)?")
-    images = {}
-    gt_n = load_gt_normals(scene.root, cfg.split, names)
-    if gt_n is not None:
-        ne = normal_error_at_views(mesh, cams, gt_n, masks, source=cfg.normal_source, rays=rays)
-        metrics["normals"] = {**ne, "source": cfg.normal_source}
-        caster = MeshCaster(mesh)
-        for k in range(min(cfg.images, len(idx))):
-            pred_n, _ = render_normals(caster, cams, k, cfg.normal_source, rays=rays[k][1:3])
-            gt_vis = (gt_n[k] * 0.5 + 0.5) * (gt_n[k] != 0).any(-1, keepdims=True)
-            pred_vis = (pred_n * 0.5 + 0.5) * (pred_n != 0).any(-1, keepdims=True)
-            images[f"normals_{names[k]}"] = (pred_vis, gt_vis)
-    else:
-        metrics["normals"] = f"not evaluated: no gt/{cfg.split}_normal/ in the scene"
-    t_mesh = time.perf_counter() - t1
-    times = {"load": round(t_load, 3), "metrics": round(t_mesh, 3)}
-    if stage2_run is None:
-        metrics["images"] = "not evaluated: the run has no renders of the test views"
-    else:
-        t2 = time.perf_counter()
-        test = sp if cfg.split == "test" else None
-        s2, s2_images = stage2_metrics(stage2_run, scene_path, cfg, test)
-        metrics["run"] = str(stage2_run)
-        metrics.update(s2)
-        images.update(s2_images)
-        times["stage2"] = round(time.perf_counter() - t2, 3)
-    metrics["time_s"] = times
-    write_report(out, metrics, images, title=f"VoxNeRO evaluation of {mesh_path}")
-    return metrics
-
-
 def run(args: argparse.Namespace) -> int:
     from voxnero.config import resolve, save_resolved
     from voxnero.eval.config import EvalConfig
+    from voxnero.eval.protocol import evaluate_target, summary_lines
     from voxnero.safety.folder import RunFolder
 
     cfg = resolve(EvalConfig, "eval", args.preset, args.overrides)
-    mesh_path = find_mesh(args.target)
-    scene_path = find_scene(args.target, args.scene)
     with RunFolder(args.out, "eval") as run:
+        m = evaluate_target(args.target, args.scene, cfg, run.staging)
         save_resolved(run.staging, {"eval": cfg},
-                      meta={"command": "eval", "mesh": str(mesh_path), "scene": str(scene_path)})
-        stage2 = Path(args.target) if is_stage2_run(args.target) else None
-        m = evaluate(mesh_path, scene_path, cfg, run.staging, stage2_run=stage2)
+                      meta={"command": "eval", "mesh": m["mesh"], "scene": m["scene"]})
         run.commit()
-    out = run.path
-    c = m["chamfer"]
-    line = (f"chamfer {c['cd']:.5f} (acc {c['acc']:.5f}, comp {c['comp']:.5f}; "
-            f"{m['n_views']} views, input frame)")
-    if isinstance(m["normals"], dict):
-        line += (f"; normal error mean {m['normals']['mean_deg']:.2f} deg, median "
-                 f"{m['normals']['median_deg']:.2f} deg")
-    print(line)
-    if isinstance(m.get("novel_view"), dict):
-        nv, mt = m["novel_view"], m["materials"]
-        print(f"novel views PSNR {nv['psnr']:.2f} dB (object {nv['psnr_object']:.2f} dB), SSIM "
-              f"{nv['ssim']:.3f}; albedo PSNR {mt['albedo_psnr']:.2f} dB, metallic MAE "
-              f"{mt['metallic_mae']:.3f}, roughness MAE {mt['roughness_mae']:.3f} "
-              f"({len(m['views'])} views)")
-        for env, v in m.get("relight", {}).items():
-            print(f"relight {env}: PSNR {v['psnr']:.2f} dB, SSIM {v['ssim']:.3f}")
-    if "warning" in m:
-        print(f"warning: {m['warning']}")
-    print(f"wrote {out / 'metrics.json'} and {out / 'metrics.md'}")
+    for line in summary_lines(m):
+        print(line)
+    print(f"wrote {run.path / 'metrics.json'} and {run.path / 'metrics.md'}")
     return 0

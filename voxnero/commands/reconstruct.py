@@ -5,9 +5,11 @@ one preset.
 
 Writes ``DIR/shape/`` (mesh.ply, stage-1 run files) and ``DIR/material/`` (model.glb,
 model.obj, envmap.exr, materials.json ...). Overrides must name their stage (``shape.iters=3000``,
-``material.iters=800``). Re-running resumes each stage from its checkpoint (``--fresh``: both
-start over); each stage's folder is guarded as its own command guards it
-(:mod:`voxnero.safety.folder`), and ``DIR`` is locked for the run.
+``material.iters=800``); the region of interest and the masks switch of the scene,
+``bbox=``, ``center=``, ``radius=`` and ``use_masks=``, may be given bare (they go to stage 1,
+which writes the mesh in the input frame that stage 2 reads). Re-running resumes each stage from
+its checkpoint (``--fresh``: both start over); each stage's folder is guarded as its own command
+guards it (:mod:`voxnero.safety.folder`), and ``DIR`` is locked for the run.
 """
 
 from __future__ import annotations
@@ -39,6 +41,10 @@ def _stage(argv: list[str]) -> None:
         raise SystemExit(rc)
 
 
+SCENE_KEYS = ("bbox", "center", "radius", "use_masks")
+"""Overrides about the scene (region of interest, masks) accepted without a stage prefix."""
+
+
 def split_overrides(items: list[str]) -> tuple[list[str], list[str]]:
     """Overrides for stage 1 and stage 2 (``shape.`` / ``material.`` prefixes kept).
 
@@ -50,7 +56,9 @@ def split_overrides(items: list[str]) -> tuple[list[str], list[str]]:
     shape, material = [], []
     for item in items:
         key = item.split("=", 1)[0].strip()
-        if key.startswith("shape."):
+        if key in SCENE_KEYS:
+            shape.append(f"shape.{item.strip()}")
+        elif key.startswith("shape."):
             shape.append(item)
         elif key.startswith("material."):
             material.append(item)

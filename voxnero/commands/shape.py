@@ -31,16 +31,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="do not log Chamfer even if the scene has ground truth")
 
 
-def _load(path: str, with_eval: bool):
+def _load(path: str, with_eval: bool, cfg=None):
     from voxnero.data.detect import load_scene
     from voxnero.errors import DataError
 
+    roi = {} if cfg is None else dict(bbox=cfg.bbox, center=cfg.center, radius=cfg.radius,
+                                      masks_as_alpha=cfg.use_masks)
     if with_eval:
         try:
-            return load_scene(path, splits=("train", "test"), eval_extras=True)
+            return load_scene(path, splits=("train", "test"), eval_extras=True, **roi)
         except DataError:
             pass
-    return load_scene(path, splits=("train",))
+    return load_scene(path, splits=("train",), **roi)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -55,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     device = default_device(args.device)
     with RunFolder(args.out, "shape", fresh=STATE if args.fresh else None) as run:
         t0 = time.perf_counter()
-        scene = _load(args.target, not args.no_eval)
+        scene = _load(args.target, not args.no_eval, cfg)
         print(f"[shape] loaded {args.target} in {time.perf_counter() - t0:.1f} s; device "
               f"{device}", flush=True)
         save_resolved(run.staging, {"shape": cfg},

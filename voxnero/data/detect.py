@@ -4,7 +4,8 @@ Formats are tried in this order (the first whose marker files exist wins):
 
 1. ``blender``: ``transforms_*.json`` in the folder (NeRF-synthetic / instant-ngp style);
 2. ``nero``: ``*-camera.pkl`` files (NeRO GlossySynthetic);
-3. ``colmap``: ``sparse/0/``, ``sparse/`` or the folder itself holding ``cameras`` and
+3. ``idr``: ``cameras_sphere.npz`` (or ``cameras.npz``) + ``image/`` (NeuS/IDR, e.g. DTU);
+4. ``colmap``: ``sparse/0/``, ``sparse/`` or the folder itself holding ``cameras`` and
    ``images`` ``.bin``/``.txt``.
 
 A path to a file inside the scene (e.g. ``transforms_train.json``) means its folder.
@@ -16,22 +17,26 @@ from pathlib import Path
 
 from voxnero.data.blender import is_blender, load_blender
 from voxnero.data.colmap import is_colmap, load_colmap
+from voxnero.data.idr import is_idr, load_idr, split_names
 from voxnero.data.nero import is_nero, load_nero
 from voxnero.data.scene import Scene
 from voxnero.errors import DataError
 
 LOOKED_FOR = ("transforms_train.json (Blender/NeRF-synthetic), <k>-camera.pkl (NeRO), "
+              "cameras_sphere.npz + image/ (NeuS/IDR), "
               "sparse/0/cameras.{bin,txt} + images.{bin,txt} (COLMAP)")
 """What :func:`detect_format` looks for, for error messages."""
 
 
 def detect_format(path: str | Path) -> str | None:
-    """``"blender"``, ``"nero"``, ``"colmap"`` or None for a scene folder."""
+    """``"blender"``, ``"nero"``, ``"idr"``, ``"colmap"`` or None for a scene folder."""
     root = Path(path)
     if is_blender(root):
         return "blender"
     if is_nero(root):
         return "nero"
+    if is_idr(root):
+        return "idr"
     if is_colmap(root):
         return "colmap"
     return None
@@ -40,7 +45,8 @@ def detect_format(path: str | Path) -> str | None:
 def available_splits(path: str | Path) -> list[str]:
     """Names of the splits a scene folder offers (without loading images).
 
-    Blender: one per ``transforms_<split>.json``; NeRO / COLMAP: the keys of ``split.json``, or
+    Blender: one per ``transforms_<split>.json``; IDR: train/test/all (index % 8) or the
+    keys of ``split.json``; NeRO / COLMAP: the keys of ``split.json``, or
     ``["train"]`` without one.
     """
     import json
@@ -54,6 +60,8 @@ def available_splits(path: str | Path) -> list[str]:
         return sorted(names, key=lambda n: (n != "train", n != "test", n))
     if fmt is None:
         return []
+    if fmt == "idr":
+        return split_names(root)
     sfile = root / "split.json"
     if sfile.is_file():
         try:
@@ -67,7 +75,8 @@ def available_splits(path: str | Path) -> list[str]:
 
 def load_scene(path: str | Path, splits=("train",), white_bg: bool = False,
                radius: float | None = None, center=None, bbox=None,
-               eval_extras: bool = False, images_dir: str | Path | None = None) -> Scene:
+               eval_extras: bool = False, images_dir: str | Path | None = None,
+               masks_as_alpha: bool = False) -> Scene:
     """Load a scene folder of any supported format into the unit frame.
 
     Args:
@@ -82,6 +91,8 @@ def load_scene(path: str | Path, splits=("train",), white_bg: bool = False,
         eval_extras: also load evaluation-only data: ``<split>_mask/`` coverage masks and
             (Blender dev scenes) ``gt/<split>_depth/`` z-depth, NeRO ``<k>-depth.png``.
         images_dir: COLMAP only: folder of the images if not ``<scene>/images``.
+        masks_as_alpha: IDR only: train with the capture's masks as alpha
+            (``shape.use_masks=true``).
 
     Returns:
         The ``Scene``; ``scene.meta["normalisation"]`` records how the normalisation was chosen.
@@ -99,6 +110,11 @@ def load_scene(path: str | Path, splits=("train",), white_bg: bool = False,
     kw = dict(splits=tuple(splits), white_bg=white_bg, radius=radius, center=center, bbox=bbox,
               eval_extras=eval_extras)
     fmt = detect_format(root)
+    if masks_as_alpha and fmt != "idr":
+        raise DataError(f"use_masks=true is supported for NeuS/IDR captures only (this is "
+                        f"{fmt})", path=root, fix="drop use_masks=true")
+    if fmt == "idr":
+        return load_idr(root, masks_as_alpha=masks_as_alpha, **kw)
     if fmt == "blender":
         return load_blender(root, **kw)
     if fmt == "nero":

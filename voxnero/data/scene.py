@@ -11,9 +11,10 @@ How the normalisation is chosen (:func:`choose_normalisation`), first rule that 
    ``scale`` = half its diagonal (the box is inside the unit sphere).
 2. ``radius`` and/or ``center`` given: ``scale = radius``; a missing one comes from rule 4
    (cameras), computed around the given/derived centre.
-3. COLMAP scenes with sparse points (and no user values): the 2nd and 98th percentiles of the
-   points per axis give a robust box; ``center`` = its centre, ``scale`` = half its diagonal
-   times 1.1 (margin).
+3. COLMAP scenes with sparse points (and no user values): the points seen by at least half the
+   views and within median + 3 MAD of their median distance (:func:`robust_points`: walls, sky
+   and stray tracks out), then the 2nd and 98th percentiles of those per axis give a box;
+   ``center`` = its centre, ``scale`` = half its diagonal times 1.1 (margin).
 4. Otherwise, from the cameras alone (assumes the cameras look at the object):
 
    * ``center`` = the least-squares point closest to all optical axes,
@@ -135,7 +136,7 @@ class Scene:
 
     Attributes:
         root: scene folder.
-        format: ``"blender"``, ``"nero"`` or ``"colmap"``.
+        format: ``"blender"``, ``"nero"``, ``"idr"`` or ``"colmap"``.
         splits: loaded splits by name.
         norm: input frame -> unit frame.
         up: ``(3,)`` unit world up axis (same in both frames).
@@ -246,6 +247,41 @@ def normalisation_from_cameras(c2w: np.ndarray, K: np.ndarray, width: int, heigh
     return center, r
 
 
+def robust_points(points: np.ndarray, c2w: np.ndarray, K: np.ndarray, width: int, height: int,
+                  min_seen: float = 0.5) -> tuple[np.ndarray, dict[str, Any]]:
+    """The sparse points that belong to the object's neighbourhood (rule 3).
+
+    A point far off (a wall, the sky, a mismatched track) is seen by few of the views that
+    circle an object, or lies far from the others: keep the points that project inside at least
+    ``min_seen`` of the images (in front of the camera), then those within median + 3 MAD
+    (scaled to a standard deviation) of their median distance to their median point.
+    Either filter is skipped when it would leave fewer than 8 points.
+
+    Returns:
+        ``(kept points (M, 3), record {"points", "seen_by_half", "inliers"})``.
+    """
+    c2w = np.asarray(c2w, np.float64)
+    K = np.asarray(K, np.float64).reshape(-1, 3, 3)
+    seen = np.zeros(len(points))
+    for i in range(len(c2w)):
+        pc = (points - c2w[i, :3, 3]) @ c2w[i, :3, :3]
+        z = pc[:, 2]
+        uv = pc @ K[min(i, len(K) - 1)].T
+        u, v = uv[:, 0] / np.maximum(z, 1e-12), uv[:, 1] / np.maximum(z, 1e-12)
+        seen += (z > 0) & (u >= 0) & (u <= width) & (v >= 0) & (v <= height)
+    p = points[seen >= min_seen * len(c2w)]
+    if len(p) < 8:
+        p = points
+    n_seen = len(p)
+    dist = np.linalg.norm(p - np.median(p, axis=0), axis=1)
+    med = np.median(dist)
+    mad = 1.4826 * np.median(np.abs(dist - med))
+    q = p[dist <= med + 3.0 * mad]
+    if len(q) >= 8:
+        p = q
+    return p, {"points": int(len(points)), "seen_by_half": int(n_seen), "inliers": int(len(p))}
+
+
 def choose_normalisation(c2w: np.ndarray, K: np.ndarray, width: int, height: int,
                          points: np.ndarray | None = None, bbox=None, radius=None,
                          center=None) -> tuple[Normalisation, dict[str, Any]]:
@@ -264,6 +300,7 @@ def choose_normalisation(c2w: np.ndarray, K: np.ndarray, width: int, height: int
     Returns:
         The ``Normalisation`` and a JSON-friendly record for ``meta["normalisation"]``.
     """
+    extra: dict[str, Any] = {}
     if bbox is not None:
         b = np.asarray(bbox, dtype=np.float64).reshape(-1)
         if b.size != 6 or not np.isfinite(b).all() or (b[3:] <= b[:3]).any():
@@ -279,16 +316,18 @@ def choose_normalisation(c2w: np.ndarray, K: np.ndarray, width: int, height: int
         method = ("user radius/center" + ("" if radius is not None and center is not None
                                           else " (rest from cameras)"))
     elif points is not None and len(points) >= 8:
-        p = np.asarray(points, dtype=np.float64)
+        p, kept = robust_points(np.asarray(points, dtype=np.float64), c2w, K, width, height)
         lo, hi = np.percentile(p, 2, axis=0), np.percentile(p, 98, axis=0)
         c = 0.5 * (lo + hi)
         s = 0.55 * float(np.linalg.norm(hi - lo))
-        method = "sparse points: 2-98 percentile box, scale = 1.1 x half diagonal"
+        method = ("sparse points seen by at least half the views, within median + 3 MAD of "
+                  "their median distance: 2-98 percentile box, scale = 1.1 x half diagonal")
+        extra = kept
     else:
         c, s = normalisation_from_cameras(c2w, K, width, height)
         method = "cameras: closest point to optical axes, largest sphere every view sees"
     norm = Normalisation(c, s)
-    rec = {"method": method, **norm.to_dict()}
+    rec = {"method": method, **norm.to_dict(), **extra}
     if bbox is not None:
         rec["bbox"] = [float(v) for v in np.asarray(bbox).reshape(-1)]
     return norm, rec

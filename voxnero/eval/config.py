@@ -17,7 +17,7 @@ class EvalConfig:
     RANGES: ClassVar[dict[str, Range]] = {
         "voxel": Range(0.0, 1e6), "views": at_least(0), "images": at_least(0, 10000),
         "material_views": at_least(1, also=(-1,)), "material_spp": at_least(0, 4096),
-        "material_subpixels": at_least(1, 1024)}
+        "material_subpixels": at_least(1, 1024), "cull_dilate": at_least(0, 64)}
     """Allowed values (:func:`voxnero.config.check_numbers`), checked before ``validate``."""
 
     split: str = "test"
@@ -42,6 +42,10 @@ class EvalConfig:
     material_subpixels: int = 4
     """Stage-2 runs: stratified points per pixel averaged in linear radiance, the box filter the
     photos were made with (the samples above are split among them; 1 = pixel centres)."""
+
+    cull_dilate: int = 2
+    """Captures without a GT mesh: dilation (pixels) of the training masks that cull the mesh
+    before its silhouettes are scored (:mod:`voxnero.eval.silhouette`)."""
 
     def validate(self) -> None:
         """Check what ``RANGES`` cannot (single values are checked before)."""

@@ -185,7 +185,9 @@ class LightConfig:
         "decide_rays": at_least(1, BIG_COUNT), "occlusion_offset": Range(0.0, 100.0),
         "occlusion_t_near": Range(0.0, 100.0), "occlusion_smooth": at_least(0, 1000),
         "hidden": at_least(1, 4096), "init_roughness": positive(1.0),
-        "init_roughness_candidates": positive(1.0)}
+        "init_roughness_candidates": positive(1.0), "near_res": at_least(2, 512),
+        "near_samples": at_least(1, 1024), "near_far_ratio": Range(1.0, 1e6, lo_open=True),
+        "near_lr": LEARNING_RATE}
     """``max_log_radiance`` <= 80: exp(80) ~ 5.5e34 still fits a float32."""
 
     env_height: int = 64
@@ -220,9 +222,21 @@ class LightConfig:
     occlusion_smooth: int = 0
     """Taubin smoothing iterations of the extracted mesh before casting (0 = none)."""
     metallic: Switch = "auto"
-    background: Literal["auto", "distant", "alpha"] = "auto"
+    background: Literal["auto", "distant", "alpha", "near"] = "auto"
     """distant: background pixel = env radiance along the ray; alpha: composite on the known
-    background colour (images with alpha, or "auto" on images whose border is one colour)."""
+    background colour (images with alpha, or "auto" on images whose border is one colour);
+    near: a low-resolution field outside the region of interest
+    (:mod:`voxnero.fields.background`) in front of the env map, "auto" when the views disagree
+    on the colour of the same background direction (parallax: the background is not at
+    infinity, :mod:`voxnero.data.distant`)."""
+    near_res: int = 48
+    """Corners per axis of the near-background grid over the contracted space ``[-2, 2]³``."""
+    near_samples: int = 16
+    """Samples per ray of the near background (uniform in disparity)."""
+    near_far_ratio: float = 64.0
+    """Last near-background sample depth over the first; beyond, the env map."""
+    near_lr: float = 3e-2
+    """Adam learning rate of the near-background grid."""
     hidden: int = 32
     init_roughness: float = 0.4
     """Perceptual roughness the material head outputs before training (everywhere). A rough
@@ -298,7 +312,7 @@ class ShapeConfig:
         "iters": at_least(1, BIG_COUNT), "seed": SEED, "mesh_res": at_least(8, 1024),
         "eval_mesh_res": at_least(8, 1024, also=(0,)), "fit_rays": at_least(1, BIG_COUNT),
         "ckpt_every_s": Range(0.0), "preview_every": at_least(0), "eval_every_s": Range(0.0),
-        "threads": THREADS}
+        "threads": THREADS, "radius": positive(), "center": Range(), "bbox": Range()}
     """Allowed values; every section's table is checked before ``validate`` (and so before a
     command reads its scene)."""
     FREE_ON_RESUME: ClassVar[tuple[str, ...]] = (
@@ -331,6 +345,16 @@ class ShapeConfig:
     preview_every: int = 500
     eval_every_s: float = 60.0
     """Seconds of training between Chamfer evaluations (scenes with GT only; 0 = never)."""
+    bbox: list[float] | None = None
+    """Region of interest ``[xmin, ymin, zmin, xmax, ymax, zmax]`` in the scene's input frame
+    (None: the format's own, see :mod:`voxnero.data.scene`); wins over ``center``/``radius``."""
+    center: list[float] | None = None
+    """Centre ``[x, y, z]`` of a spherical region of interest (input frame)."""
+    radius: float | None = None
+    """Radius of the region of interest (input frame units)."""
+    use_masks: bool = False
+    """Train with the capture's object masks as alpha (NeuS/IDR captures with ``mask/``).
+    Off by default: the NeRO setting has no masks; they are evaluation data."""
     threads: int = 1
     """torch CPU threads (0 = torch's default). On the shared 2-core dev machine one thread was
     2.5× faster than two under contention (docs/BENCHMARKS.md); raise it on a dedicated machine."""

@@ -56,6 +56,7 @@ def resolve_switches(cfg: ShapeConfig, scene: Any,
     # the indirect light is mixed in by the occlusion probability: it needs the occlusion net
     ind = occ and adaptive.is_on(lc.indirect)
     if decisions is not None:
+        decisions.append(adaptive.roi_decision(scene))  # issue 22: the ROI and why
         decisions.append(dec)
         if adaptive.is_forced(lc.occlusion):
             why = f"forced by light.occlusion={lc.occlusion}"

@@ -11,7 +11,8 @@ Per ray (unit frame, ``o + t·d``):
    (split-sum GGX, :mod:`voxnero.shape.shading`) instead of at every sample; gradients still reach
    the SDF through ``w`` and the normals;
 4. ``pixel = acc·surface + (1 − acc)·background``, background = env radiance along the ray
-   (distant environment) or a known colour (images with alpha).
+   (distant environment), a known colour (images with alpha), or a near-background field
+   outside the unit sphere composited in front of the env map (:mod:`voxnero.fields.background`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from voxnero.fields.background import NearBackground
 from voxnero.fields.grid import DenseGrid, SDFGrid
 from voxnero.fields.heads import MaterialHead
 from voxnero.fields.lights import EnvLight, IndirectNet, OcclusionNet
@@ -40,7 +42,7 @@ class Switches:
     occlusion: bool = True
     metallic: bool = True
     background: str = "distant"
-    """"distant" or "alpha"."""
+    """"distant", "alpha" or "near"."""
     bg_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
 
@@ -65,6 +67,8 @@ class ShapeModel(nn.Module):
         self.env = EnvLight(lc.env_height, lc.env_init, lc.max_log_radiance)
         self.indirect = IndirectNet(g.feat_dim, lc.hidden) if sw.indirect else None
         self.occlusion = OcclusionNet(g.feat_dim, lc.hidden) if sw.occlusion else None
+        self.near_bg = (NearBackground(lc.near_res, lc.near_samples, lc.near_far_ratio)
+                        if sw.background == "near" else None)
 
     def param_groups(self, cfg: ShapeConfig) -> list[dict]:
         """Adam parameter groups with their learning rates (named for schedules)."""
@@ -73,6 +77,8 @@ class ShapeModel(nn.Module):
                   dict(name="feat", params=[self.feat.grid], lr=o.lr_feat),
                   dict(name="heads", params=list(self.material.parameters()), lr=o.lr_heads),
                   dict(name="env", params=[self.env.log_radiance], lr=o.lr_env)]
+        if self.near_bg is not None:
+            groups.append(dict(name="near_bg", params=[self.near_bg.grid], lr=cfg.light.near_lr))
         light = []
         for m in (self.indirect, self.occlusion):
             if m is not None:
@@ -82,10 +88,16 @@ class ShapeModel(nn.Module):
         return groups
 
 
-def background(model: ShapeModel, dirs: torch.Tensor) -> torch.Tensor:
-    """Background radiance ``(R, 3)`` for unit ray directions ``(R, 3)``."""
+def background(model: ShapeModel, dirs: torch.Tensor, origins: torch.Tensor | None = None,
+               train: bool = False, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Background radiance ``(R, 3)`` for rays ``origins + t·dirs`` (``(R, 3)``, unit frame,
+    unit directions): the known colour, the env map along ``dirs``, or the near-background
+    field outside the unit sphere in front of the env map (needs ``origins``)."""
     if model.sw.background == "alpha":
         return torch.tensor(model.sw.bg_color, device=dirs.device).expand(dirs.shape[0], 3)
+    if model.near_bg is not None and origins is not None:
+        rgb, trans = model.near_bg(origins, dirs, jitter=train, generator=generator)
+        return rgb + trans[:, None] * model.env.background(dirs)
     return model.env.background(dirs)
 
 
@@ -115,7 +127,7 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
     r = origins.shape[0]
     dev = origins.device
     near, far, hit = clip_rays(origins, dirs, sc.radius, model.sdf.bounds)
-    bg = background(model, dirs)
+    bg = background(model, dirs, origins, train, generator)
     rgb = bg.clone()
     acc_all = torch.zeros(r, device=dev)
     normal_all = torch.zeros(r, 3, device=dev)
