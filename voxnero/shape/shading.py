@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import torch
 
-from voxnero.render.microfacet import DIELECTRIC_F0, f0_from
-from voxnero.render.splitsum import split_sum_lookup
+from voxnero.render.brdf import diffuse_weight
+from voxnero.render.microfacet import f0_from
+from voxnero.render.splitsum import specular_split_sum
 
 
 def reflect(d: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
@@ -48,8 +49,7 @@ def shade(n: torch.Tensor, d: torch.Tensor, albedo: torch.Tensor, metallic: torc
         ``(N, 3)`` linear outgoing radiance.
     """
     n_dot_v = (-(d * n).sum(-1, keepdim=True)).clamp(1e-4, 1.0)
-    a, b = split_sum_lookup(n_dot_v, roughness)
-    f0 = f0_from(albedo, metallic)
     # the diffuse lobe gets what the dielectric interface does not reflect (render/brdf.py)
-    w_diff = (1.0 - (DIELECTRIC_F0 * a + b)).clamp(0.0, 1.0)
-    return (1.0 - metallic) * w_diff * albedo * diff_light + (f0 * a + b) * spec_light
+    diffuse = (1.0 - metallic) * diffuse_weight(n_dot_v, roughness) * albedo * diff_light
+    return diffuse + specular_split_sum(f0_from(albedo, metallic), n_dot_v, roughness,
+                                        spec_light)
