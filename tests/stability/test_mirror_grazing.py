@@ -218,7 +218,8 @@ def test_stage2_mirror_reflection_lands_by_the_law():
 def test_stage2_grazing_views_finite_and_energy_conserving(nv, rough):
     """Stage-2 MC shading at n·v = 0, 1e-6, −1e-3: finite colour and gradients w.r.t. normals,
     view directions, material and env map; a white metal under a unit env returns ≤ 1 on
-    average (white furnace, MC tolerance 3 % at 24 spp) and 0 below the horizon."""
+    average (white furnace, MC tolerance 3 % at 24 spp), also below the horizon, where the
+    shading normal is bent toward the viewer."""
     geom, tri, bary, x, n0, _ = _mc_points(16, res=40)
     k = x.shape[0]
     n = n0.clone().requires_grad_(True)
@@ -231,4 +232,6 @@ def test_stage2_grazing_views_finite_and_energy_conserving(nv, rough):
     assert _finite(L, n.grad, v.grad, env.grad, *[p.grad for p in params])
     assert float(L.detach().mean()) <= 1.03, float(L.detach().mean())
     if nv < 0:
-        assert float(L.detach().abs().max()) == 0.0
+        # a shading normal facing away from the viewer is bent to n·v = 1e-3 (material/render.py:
+        # silhouettes and secondary hits would turn black): shaded like a grazing view, not 0
+        assert float(L.detach().mean()) > 0.5, float(L.detach().mean())
