@@ -5,23 +5,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from voxnero.config import read_meta
+
 
 def is_stage2_run(target: str | Path) -> bool:
     """Whether ``target`` is a ``voxnero material`` output folder (model.glb + envmap.exr)."""
     p = Path(target)
     return p.is_dir() and (p / "model.glb").is_file() and (p / "envmap.exr").is_file()
-
-
-def _meta(run: Path) -> dict:
-    import yaml
-
-    cfg = run / "config.yaml"
-    if not cfg.is_file():
-        return {}
-    try:
-        return (yaml.safe_load(cfg.read_text()) or {}).get("_meta", {}) or {}
-    except yaml.YAMLError:
-        return {}
 
 
 def find_mesh(target: str | Path) -> Path:
@@ -35,7 +25,7 @@ def find_mesh(target: str | Path) -> Path:
         if (p / "mesh.ply").is_file():
             return p / "mesh.ply"
         if is_stage2_run(p):
-            stage1 = _meta(p).get("mesh")
+            stage1 = read_meta(p).get("mesh")
             if stage1 and Path(stage1).is_file():
                 return Path(stage1)
             return p / "model.glb"
@@ -50,20 +40,13 @@ def find_mesh(target: str | Path) -> Path:
 
 def find_scene(target: str | Path, scene: str | None) -> Path:
     """``--scene`` if given, else ``_meta.scene`` of the run's ``config.yaml``."""
-    import yaml
-
     from voxnero.errors import ConfigError
 
     if scene:
         return Path(scene)
     run = Path(target) if Path(target).is_dir() else Path(target).parent
-    cfg = run / "config.yaml"
-    if cfg.is_file():
-        try:
-            meta = (yaml.safe_load(cfg.read_text()) or {}).get("_meta", {}) or {}
-        except yaml.YAMLError:
-            meta = {}
-        if meta.get("scene"):
-            return Path(meta["scene"])
+    meta = read_meta(run)
+    if meta.get("scene"):
+        return Path(meta["scene"])
     raise ConfigError("no scene to evaluate against", fix="pass --scene SCENE_FOLDER (a scene with "
                       "test_mask/ and gt/test_depth/, e.g. a dev scene)")
