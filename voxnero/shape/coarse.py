@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from voxnero.fields.grid import DenseGrid, gaussian_blur3d, trilinear_value_grad
+from voxnero.fields.grid import DenseGrid, trilinear_value_grad
 from voxnero.fields.heads import mlp
 from voxnero.fields.lights import EnvLight
 from voxnero.shape.neus import composite_weights
@@ -114,8 +114,8 @@ def tv_loss(grid: torch.Tensor) -> torch.Tensor:
 def train_coarse(model: CoarseModel, env: EnvLight, batch: Callable[[int], tuple],
                  loss_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], iters: int,
                  rays: int, samples: int, lr_grid: float = 0.1, lr_head: float = 1e-3,
-                 lr_env: float = 3e-2, tv: float = 0.0, grad_smooth: float = 0.0,
-                 radius: float = 1.0, generator: torch.Generator | None = None,
+                 lr_env: float = 3e-2, tv: float = 0.0, radius: float = 1.0,
+                 generator: torch.Generator | None = None,
                  progress: Callable[[int, float], None] | None = None) -> list[float]:
     """Fit the coarse model and the env map to the photos; returns the per-step loss.
 
@@ -125,7 +125,6 @@ def train_coarse(model: CoarseModel, env: EnvLight, batch: Callable[[int], tuple
         iters, rays, samples: steps, rays per step, samples per ray.
         lr_grid, lr_head, lr_env: Adam learning rates (grid values, colour head, env map).
         tv: weight of the total variation of the raw density.
-        grad_smooth: Gaussian blur (voxels) of the density grid's gradient before each step.
         progress: called with (step, loss) after each step.
     """
     opt = torch.optim.Adam([dict(params=[model.density_grid.grid, model.feat.grid], lr=lr_grid),
@@ -142,9 +141,6 @@ def train_coarse(model: CoarseModel, env: EnvLight, batch: Callable[[int], tuple
             loss = loss + tv * tv_loss(model.density_grid.grid[0])
         opt.zero_grad(set_to_none=True)
         loss.backward()
-        g = model.density_grid.grid
-        if grad_smooth > 0 and g.grad is not None:
-            g.grad[0] = gaussian_blur3d(g.grad[0], grad_smooth)
         opt.step()
         env.release()
         hist.append(float(loss.detach()))

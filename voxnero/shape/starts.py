@@ -77,7 +77,7 @@ def coarse_start(tr: ShapeTrainer) -> None:
     hist = train_coarse(model, tr.model.env, lambda n: tr.pixel_batch(n, tr.gen),
                         lambda p, t: losses.color_loss(p, t, lc.charbonnier_eps, lc.color_space),
                         c.iters, c.rays, c.samples, c.lr_grid, c.lr_head, tr.cfg.optim.lr_env,
-                        c.tv, 0.0, tr.cfg.sampling.radius, tr.gen, progress)
+                        c.tv, tr.cfg.sampling.radius, tr.gen, progress)
     if bar is not None:
         bar.close()
     alpha = model.voxel_alpha().cpu().numpy()
