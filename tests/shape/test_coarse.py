@@ -37,6 +37,27 @@ def test_solid_fills_a_closed_shell_and_not_an_open_one():
     assert not hull.solid(np.where(cut, 0.9, 0.0), 0.5)[r < 0.4].any()  # the fill leaks out
 
 
+def test_closing_shuts_narrow_tunnels_and_keeps_thin_rods():
+    """``close``: a tunnel one voxel wide through a closed box's wall is shut (the cavity is
+    filled), one nine voxels wide stays open (no fill), and a rod one voxel thin is kept
+    whole (a closing never removes an occupied voxel; a blur would have)."""
+    n = 32
+    box = np.zeros((n, n, n), bool)
+    box[4:28, 4:28, 4:28] = True
+    box[6:26, 6:26, 6:26] = False  # a hollow box, walls 2 voxels thick
+    narrow, wide = box.copy(), box.copy()
+    narrow[15, 15, 4:6] = False             # a 1-voxel tunnel through one wall
+    wide[11:20, 11:20, 4:6] = False          # a 9-voxel hole through it
+    inner = (slice(8, 24),) * 3
+    assert not hull.solid(narrow.astype(float), 0.5)[inner].any()       # leaks without closing
+    assert hull.solid(narrow.astype(float), 0.5, close=1)[inner].all()   # shut and filled
+    assert not hull.solid(wide.astype(float), 0.5, close=1)[inner].any()  # a real hole stays
+    rod = np.zeros((n, n, n), bool)
+    rod[16, 16, 2:30] = True
+    out = hull.solid(rod.astype(float), 0.5, close=1)
+    assert out[rod].all() and out.sum() == rod.sum()
+
+
 @settings(max_examples=15, deadline=None)
 @given(radius=st.floats(0.25, 0.8))
 def test_signed_distance_of_a_voxel_ball_is_the_ball_sdf(radius):
@@ -59,8 +80,9 @@ def test_signed_distance_of_empty_and_full_grids_is_finite():
     assert np.isfinite(f).all() and (f < 0).all()
 
 
-def _uniform_env() -> EnvLight:
-    return EnvLight(8, init=0.25)
+def _uniform_env():
+    env = EnvLight(8, init=0.25)
+    return lambda o, d: env.background(d)
 
 
 def test_empty_grid_renders_the_environment():
@@ -70,6 +92,27 @@ def test_empty_grid_renders_the_environment():
     out = render_coarse(model, _uniform_env(), o, d, samples=64, train=False)
     assert torch.allclose(out["rgb"], torch.full((2, 3), 0.25), atol=1e-6)
     assert out["acc"].max() < 1e-6
+
+
+def test_partly_opaque_ray_composites_over_the_background_it_is_given():
+    """The background is the caller's (a near field depends on the ray's origin, not only its
+    direction): pixel = acc·surface + (1 − acc)·background(o, d), so two backgrounds behind
+    the same rays change the pixels by exactly (1 − acc)·(difference)."""
+    model = CoarseModel(16, 1.05, alpha_init=0.05)
+    o = torch.tensor([[0.0, -3.0, 0.0], [0.3, -3.0, 0.1]])
+    d = torch.tensor([[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+
+    def near(o_, d_):
+        return o_.abs() + 0.1  # differs between the two parallel rays
+
+    def far(o_, d_):
+        return torch.full_like(o_, 0.7)
+
+    a = render_coarse(model, near, o, d, samples=64, train=False)
+    b = render_coarse(model, far, o, d, samples=64, train=False)
+    acc = a["acc"][:, None]
+    assert 0.05 < float(acc.min()) and float(acc.max()) < 0.95
+    assert torch.allclose(a["rgb"] - b["rgb"], (1 - acc) * (near(o, d) - far(o, d)), atol=1e-6)
 
 
 @pytest.mark.parametrize("alpha_init", [1e-3, 0.02, 0.3])

@@ -6,12 +6,14 @@ blurred away early never grows back (docs/STAGE1.md, finding 16). A density fiel
 limit: every sample along a ray gets a gradient through the transmittance. So, as DVGO's and
 Voxurf's coarse stages do, a few hundred steps first fit a density grid (the same trilinear
 :class:`~voxnero.fields.grid.DenseGrid`) with deferred colour (one feature lookup per ray, at its
-expected surface point, as the main stage shades), composited over the
-learnable env map that the SDF stage goes on with (a distant background, as in the main stage)::
+expected surface point, as the main stage shades), composited over the scene's background as
+the main stage draws it without its near field (:func:`voxnero.shape.renderer.background`:
+the learnable env map, which the SDF stage goes on with, or the known colour of images with
+alpha; a near field in the coarse stage fitted the hull of dtu_scan97 worse)::
 
     α_i = 1 − exp(−softplus(raw(x_i) + shift) · δ_i / voxel)       (density per voxel length)
     w_i = α_i ∏_{j<i} (1 − α_j),  acc = Σ w_i
-    x̄ = Σ w_i x_i / acc,   pixel = acc · c(x̄, d) + (1 − acc) · env(d)
+    x̄ = Σ w_i x_i / acc,   pixel = acc · c(x̄, d) + (1 − acc) · background(o, d)
 
 The colour ``c`` is a free MLP of the features at x̄ and the view direction (DVGO's colour). The
 main stage's split-sum shading with the density's normal fitted worse in 300 steps (bowl_silver
@@ -36,6 +38,10 @@ from voxnero.fields.heads import mlp
 from voxnero.fields.lights import EnvLight
 from voxnero.shape.neus import composite_weights
 from voxnero.shape.sampler import ray_sphere, stratified
+
+Background = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+"""``background(origins, dirs)``: linear radiance ``(R, 3)`` behind the object along unit-frame
+rays ``(R, 3)`` each (the main stage's :func:`voxnero.shape.renderer.background`)."""
 
 
 class CoarseModel(nn.Module):
@@ -69,13 +75,13 @@ class CoarseModel(nn.Module):
         return 1.0 - torch.exp(-self.density(self.density_grid.grid[0]))
 
 
-def render_coarse(model: CoarseModel, env: EnvLight, origins: torch.Tensor, dirs: torch.Tensor,
-                  samples: int, radius: float = 1.0, train: bool = True,
+def render_coarse(model: CoarseModel, background: Background, origins: torch.Tensor,
+                  dirs: torch.Tensor, samples: int, radius: float = 1.0, train: bool = True,
                   generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
-    """Render rays through the density grid over the env map.
+    """Render rays through the density grid over the background.
 
     Args:
-        model: the coarse model; env: the learnable env map (background along each ray).
+        model: the coarse model; background: radiance behind the object along each ray.
         origins: ``(R, 3)`` unit-frame ray origins; dirs: ``(R, 3)`` unit directions.
         samples: stratified samples per ray inside the bounding sphere of ``radius``.
         train: jitter the samples.
@@ -84,7 +90,7 @@ def render_coarse(model: CoarseModel, env: EnvLight, origins: torch.Tensor, dirs
         ``rgb (R, 3)`` linear radiance and ``acc (R,)`` opacity.
     """
     near, far, hit = ray_sphere(origins, dirs, radius)
-    rgb = env.background(dirs)
+    rgb = background(origins, dirs)
     acc_all = torch.zeros(origins.shape[0], device=origins.device)
     idx = torch.nonzero(hit).squeeze(-1)
     if idx.numel() == 0:
@@ -116,17 +122,25 @@ def train_coarse(model: CoarseModel, env: EnvLight, batch: Callable[[int], tuple
                  rays: int, samples: int, lr_grid: float = 0.1, lr_head: float = 1e-3,
                  lr_env: float = 3e-2, tv: float = 0.0, radius: float = 1.0,
                  generator: torch.Generator | None = None,
-                 progress: Callable[[int, float], None] | None = None) -> list[float]:
-    """Fit the coarse model and the env map to the photos; returns the per-step loss.
+                 progress: Callable[[int, float], None] | None = None,
+                 background: Background | None = None) -> list[float]:
+    """Fit the coarse model, the env map and the background to the photos; returns the
+    per-step loss.
 
     Args:
+        env: the learnable env map (trained at ``lr_env``; its mip chain is prepared per step).
         batch: ``batch(n)`` → ray origins, directions ``(n, 3)`` and target linear RGB ``(n, 3)``.
         loss_fn: photometric loss of predicted and target linear RGB.
         iters, rays, samples: steps, rays per step, samples per ray.
         lr_grid, lr_head, lr_env: Adam learning rates (grid values, colour head, env map).
         tv: weight of the total variation of the raw density.
         progress: called with (step, loss) after each step.
+        background: radiance behind the object (default: ``env`` along the ray's direction).
     """
+    if background is None:
+        def background(o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+            return env.background(d)
+
     opt = torch.optim.Adam([dict(params=[model.density_grid.grid, model.feat.grid], lr=lr_grid),
                             dict(params=list(model.head.parameters()), lr=lr_head),
                             dict(params=[env.log_radiance], lr=lr_env)],
@@ -135,7 +149,7 @@ def train_coarse(model: CoarseModel, env: EnvLight, batch: Callable[[int], tuple
     for it in range(iters):
         o, d, target = batch(rays)
         env.prepare()
-        out = render_coarse(model, env, o, d, samples, radius, True, generator)
+        out = render_coarse(model, background, o, d, samples, radius, True, generator)
         loss = loss_fn(out["rgb"], target)
         if tv > 0:
             loss = loss + tv * tv_loss(model.density_grid.grid[0])

@@ -33,7 +33,8 @@ class GridConfig:
         "res": at_least(4, 1024), "upsample_at": Range(0.0, 1.0, lo_open=True, hi_open=True),
         "bound": positive(10.0), "init_radius": positive(1.5), "init_candidates": positive(1.5),
         "init_margin": Range(-100.0, 100.0),
-        "fd_step": positive(16.0), "grad_smooth": Range(0.0, 16.0), "feat_res": at_least(1, 512),
+        "fd_step": positive(16.0), "grad_smooth": Range(0.0, 16.0),
+        "update_smooth": Range(0.0, 16.0), "feat_res": at_least(1, 512),
         "feat_dim": at_least(1, 256)}
     """Allowed values (:func:`voxnero.config.check_numbers`); the units are voxels, the unit
     frame (``bound``, radii: the object lies in the unit sphere) and dB."""
@@ -70,6 +71,12 @@ class GridConfig:
     space (2 voxels at 96³) made both preview runs diverge after the upsampling: Adam scales
     the blurred tails of tiny gradients up to full lr-sized steps, the grid filled with noise
     (mean squared Laplacian 1.6e3 voxel units, Chamfer 1.1)."""
+    update_smooth: float = 0.0
+    """Gaussian blur (sigma, in voxels of the current grid) of each Adam *update* of the SDF
+    grid (0 = off): the grid moves by ``blur(new - old)``. Unlike ``grad_smooth``, whose blurred
+    gradient Adam divides back into per-voxel steps of about lr, the change of the surface is
+    smooth at the scale sigma whatever the optimiser does, so no voxel-scale bumps can grow; a
+    part thicker than a few voxels (a chair leg) is not penalised, only its updates are."""
     feat_res: int = 8
     feat_dim: int = 8
     res_auto: bool = True
@@ -90,7 +97,8 @@ class CoarseConfig:
         "alpha_init": Range(0.0, 1.0, lo_open=True, hi_open=True), "lr_grid": LEARNING_RATE,
         "lr_head": LEARNING_RATE, "tv": WEIGHT, "margin": Range(0.0, 64.0),
         "s_start": positive(1e9), "normal_smooth": WEIGHT, "sdf_res": at_least(4, 1024),
-        "smooth": Range(0.0, 16.0),
+        "smooth": Range(0.0, 16.0), "close": at_least(0, 16),
+        "update_smooth": Range(0.0, 16.0), "lr_sdf_factor": positive(1e3),
         "threshold": Range(0.0, 1.0, lo_open=True, hi_open=True)}
 
     iters: int = 0
@@ -118,6 +126,13 @@ class CoarseConfig:
     sphere start's): the hull is within a few pixels, a blurry start erodes thin parts."""
     normal_smooth: float = 0.0
     """``loss.normal_smooth`` after a coarse start."""
+    update_smooth: float = 0.0
+    """``grid.update_smooth`` after a coarse start (replacing ``grid.grad_smooth``): each step
+    of the SDF is blurred by this sigma (voxels), so no voxel-scale bumps grow while rods keep
+    their width (docs/STAGE1.md, finding 18)."""
+    lr_sdf_factor: float = 1.0
+    """Factor on ``optim.lr_sdf`` after a coarse start: the update blur spreads a step over
+    the neighbours, so a sheet moves about half as far per step at sigma 1."""
     sdf_res: int = 96
     """SDF grid resolution after a coarse start (one grid, no upsampling; capped by the pixel
     footprint over the fitted box); ``grid.res`` is the sphere start's schedule."""
@@ -128,7 +143,12 @@ class CoarseConfig:
     """Margin of the fitted cube, in voxels of the coarse grid."""
     smooth: float = 0.0
     """Gaussian blur (sigma, coarse voxels) of the opacity before the threshold: removes the
-    voxel-scale tunnels of a noisy density (hull genus 94 -> 1 on knot_chrome at sigma 1)."""
+    voxel-scale tunnels of a noisy density (hull genus 94 -> 1 on knot_chrome at sigma 1), but
+    also thin parts whose opacity sits in one or two voxels (table_oak: 51 voxels left)."""
+    close: int = 0
+    """Iterations of a morphological closing (3×3×3 cube) of the occupied voxels before
+    the fill: closes tunnels up to 2·close voxels wide and never removes an occupied
+    voxel, so thin parts stay (the alternative to ``smooth``)."""
     threshold: float = 0.05
     """Opacity per voxel length above which a voxel is occupied (the shell that is filled).
     Low, so that the shell is closed: a hole in it lets the fill leak (hull Chamfer after 300

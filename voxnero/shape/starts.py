@@ -21,7 +21,7 @@ import torch
 
 from voxnero.shape import adaptive, losses, schedules
 from voxnero.shape.config import ShapeConfig
-from voxnero.shape.renderer import render_rays
+from voxnero.shape.renderer import background, render_rays
 
 if TYPE_CHECKING:
     from voxnero.shape.trainer import ShapeTrainer
@@ -74,17 +74,22 @@ def coarse_start(tr: ShapeTrainer) -> None:
             bar.update(1)
             bar.set_postfix(loss=f"{loss:.4f}")
 
-    hist = train_coarse(model, tr.model.env, lambda n: tr.pixel_batch(n, tr.gen),
+    m = tr.model
+    hist = train_coarse(model, m.env, lambda n: tr.pixel_batch(n, tr.gen),
                         lambda p, t: losses.color_loss(p, t, lc.charbonnier_eps, lc.color_space),
                         c.iters, c.rays, c.samples, c.lr_grid, c.lr_head, tr.cfg.optim.lr_env,
-                        c.tv, tr.cfg.sampling.radius, tr.gen, progress)
+                        c.tv, tr.cfg.sampling.radius, tr.gen, progress,
+                        # the env map (or the known colour of images with alpha), without the
+                        # near field: with it the hull of dtu_scan97 fitted worse (held-out
+                        # IoU 0.79 / 0.81 against 0.87 / 0.90, docs/BENCHMARKS.md session 10)
+                        background=lambda o, d: background(m, d))
     if bar is not None:
         bar.close()
     alpha = model.voxel_alpha().cpu().numpy()
     if c.smooth > 0:
         from scipy import ndimage
         alpha = ndimage.gaussian_filter(alpha, c.smooth)
-    inside = hull.solid(alpha, c.threshold)
+    inside = hull.solid(alpha, c.threshold, close=c.close)
     sdf = hull.signed_distance(inside, model.density_grid.voxel)
     g = tr.model.sdf
     box = None
@@ -127,11 +132,16 @@ def with_coarse_schedule(cfg: ShapeConfig) -> ShapeConfig:
     """The config of a start from the coarse stage's hull: the SDF stage begins sharp
     (``coarse.s_start``), on one grid of ``coarse.sdf_res`` and with ``coarse.normal_smooth``,
     since its surface is already near the object's (a blurry start erodes thin parts, a normal
-    smoothness one voxel wide removes rods of that width: docs/STAGE1.md, finding 17)."""
+    smoothness one voxel wide removes rods of that width: docs/STAGE1.md, finding 17); its
+    steps are blurred by ``coarse.update_smooth`` at ``coarse.lr_sdf_factor`` times the SDF
+    learning rate (finding 18)."""
     c = cfg.coarse
+    grid = replace(cfg.grid, res=[c.sdf_res], upsample_at=[])
+    if c.update_smooth > 0:
+        grid = replace(grid, grad_smooth=0.0, update_smooth=c.update_smooth)
     return replace(cfg, neus=replace(cfg.neus, s_start=c.s_start),
-                   loss=replace(cfg.loss, normal_smooth=c.normal_smooth),
-                   grid=replace(cfg.grid, res=[c.sdf_res], upsample_at=[]))
+                   loss=replace(cfg.loss, normal_smooth=c.normal_smooth), grid=grid,
+                   optim=replace(cfg.optim, lr_sdf=cfg.optim.lr_sdf * c.lr_sdf_factor))
 
 
 def fit_grid_to_box(tr: ShapeTrainer, box: torch.Tensor, sdf: torch.Tensor,

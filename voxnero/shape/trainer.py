@@ -168,7 +168,11 @@ class ShapeTrainer:
             # a finite loss can still give a NaN gradient (0 * inf in a saturated exp): skip
             self.opt.zero_grad(set_to_none=True)
             return self._skip("non-finite gradient", s)
+        before = g.detach().clone() if cfg.grid.update_smooth > 0 else None
         self.opt.step()
+        if before is not None:
+            with torch.no_grad():
+                g[0] = before[0] + gaussian_blur3d(g[0] - before[0], cfg.grid.update_smooth)
         m.env.release()
         return {"loss": float(loss.detach()), **{k: float(v.detach()) for k, v in t.items()},
                 "psnr": losses.psnr(out["rgb"], target), "s": s, "res": m.sdf.res}
