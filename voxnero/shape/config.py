@@ -126,13 +126,15 @@ class CoarseConfig:
     sphere start's): the hull is within a few pixels, a blurry start erodes thin parts."""
     normal_smooth: float = 0.0
     """``loss.normal_smooth`` after a coarse start."""
-    update_smooth: float = 0.0
+    update_smooth: float = 1.0
     """``grid.update_smooth`` after a coarse start (replacing ``grid.grad_smooth``): each step
     of the SDF is blurred by this sigma (voxels), so no voxel-scale bumps grow while rods keep
     their width (docs/STAGE1.md, finding 18)."""
-    lr_sdf_factor: float = 1.0
+    lr_sdf_factor: float = 4.0
     """Factor on ``optim.lr_sdf`` after a coarse start: the update blur spreads a step over
-    the neighbours, so a sheet moves about half as far per step at sigma 1."""
+    the neighbours, so a sheet moves about half as far per step at sigma 1 (corpus `preview`,
+    coarse start only, factors 1 / 2 / 4 on five scenes: median Chamfer 1.85 / 1.53 / 1.12 px,
+    docs/STAGE1.md finding 18)."""
     sdf_res: int = 96
     """SDF grid resolution after a coarse start (one grid, no upsampling; capped by the pixel
     footprint over the fitted box); ``grid.res`` is the sphere start's schedule."""
@@ -145,11 +147,11 @@ class CoarseConfig:
     """Gaussian blur (sigma, coarse voxels) of the opacity before the threshold: removes the
     voxel-scale tunnels of a noisy density (hull genus 94 -> 1 on knot_chrome at sigma 1), but
     also thin parts whose opacity sits in one or two voxels (table_oak: 51 voxels left)."""
-    close: int = 0
+    close: int = 1
     """Iterations of a morphological closing (3×3×3 cube) of the occupied voxels before
     the fill: closes tunnels up to 2·close voxels wide and never removes an occupied
     voxel, so thin parts stay (the alternative to ``smooth``)."""
-    threshold: float = 0.05
+    threshold: float = 0.1
     """Opacity per voxel length above which a voxel is occupied (the shell that is filled).
     Low, so that the shell is closed: a hole in it lets the fill leak (hull Chamfer after 300
     steps at 0.05 / 0.1 / 0.3: knot_chrome 1.3 / 1.8 / 8.2 px, table_oak 2.0 / 1.7 / 15.8 px)."""
