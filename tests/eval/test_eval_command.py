@@ -128,6 +128,9 @@ def test_eval_of_a_stage2_run(tmp_path, capsys):
     assert m["chamfer"]["cd"] < 0.02 and m["normals"]["mean_deg"] < 3
     # (2) image / material metrics of the exported asset
     assert m["views"] == [0] and m["asset"] == str(run / "model.glb")
+    # rendered with the light model stage 2 trained with, not re-decided per view
+    trained = json.loads((run / "materials.json").read_text())["decisions"]["indirect_model"]
+    assert m["indirect"] == trained
     for k in ("psnr", "psnr_object"):
         assert math.isfinite(m["novel_view"][k]) and m["novel_view"][k] > 15, k
     assert 0 < m["novel_view"]["ssim"] <= 1

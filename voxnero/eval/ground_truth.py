@@ -49,7 +49,9 @@ def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]
     dec = {}
     if (run / "materials.json").is_file():
         dec = json.loads((run / "materials.json").read_text()).get("decisions", {}) or {}
-    indirect = bool(dec.get("indirect", True))
+    # the light model stage 2 trained with ("traced", "splitsum", "off"); runs written before
+    # it was recorded hold only the bool, which evaluate_scene decides per view
+    indirect = dec.get("indirect_model") or bool(dec.get("indirect", True))
     visibility = bool(dec.get("visibility_casts", True))
     spp = Strategies(*(int(x) for x in cfg.material_spp))
     res = evaluate_scene(scene_path, geom, asset.field, env, spp, indirect, visibility,
