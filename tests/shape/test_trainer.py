@@ -344,3 +344,12 @@ def test_coarse_start_races_the_sphere_and_keeps_the_better_fit(scene, tmp_path)
     kept = max(fits, key=fits.get)
     assert dec["value"] == kept
     assert (tmp_path / "starts" / "coarse").is_dir() and (tmp_path / "starts" / "r0.7").is_dir()
+    # the coarse child applies the coarse schedule once: SDF lr = lr_sdf × coarse.lr_sdf_factor,
+    # scaled from the preset's first voxel to the fitted grid's (not the factor squared)
+    ck = torch.load(tmp_path / "starts" / "coarse" / "checkpoint.pt", weights_only=False)
+    sdf_group = next(g for g in ck["opt"]["param_groups"] if g.get("name") == "sdf")
+    child = json.loads((tmp_path / "starts" / "coarse" / "decisions.json").read_text())
+    voxel = child["coarse"]["evidence"]["sdf_voxel"]
+    ref = 2.0 * cfg.grid.bound / (cfg.grid.res[0] - 1)
+    expect = cfg.optim.lr_sdf * cfg.coarse.lr_sdf_factor * voxel / ref
+    assert sdf_group["base_lr"] == pytest.approx(expect, rel=1e-3)

@@ -226,7 +226,9 @@ def race(tr: ShapeTrainer) -> Path:
         sub = replace(tr.cfg_in, grid=replace(g, init_candidates=[]),
                       light=replace(light, init_roughness_candidates=[]))
         if radius is None:
-            sub = with_coarse_schedule(replace(sub, coarse=replace(co, race=False)))
+            # the child's trainer applies the coarse schedule itself (once: its learning-rate
+            # factor multiplies)
+            sub = replace(sub, coarse=replace(co, race=False))
         else:
             sub = replace(sub, grid=replace(sub.grid, init_radius=radius),
                           coarse=replace(co, iters=0))
