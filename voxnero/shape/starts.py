@@ -134,7 +134,8 @@ def with_coarse_schedule(cfg: ShapeConfig) -> ShapeConfig:
     since its surface is already near the object's (a blurry start erodes thin parts, a normal
     smoothness one voxel wide removes rods of that width: docs/STAGE1.md, finding 17); its
     steps are blurred by ``coarse.update_smooth`` at ``coarse.lr_sdf_factor`` times the SDF
-    learning rate (finding 18)."""
+    learning rate (finding 18). Apply it once, to the config as given (the trainer does): the
+    learning-rate factor multiplies."""
     c = cfg.coarse
     grid = replace(cfg.grid, res=[c.sdf_res], upsample_at=[])
     if c.update_smooth > 0:
