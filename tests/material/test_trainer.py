@@ -177,3 +177,34 @@ def test_visibility_casts_auto_turn_on_for_two_spheres_that_see_each_other():
     model = "traced" if frac >= TRACED_HIT_MIN else "splitsum"
     assert tr.decisions["indirect_model"] == model and (tr.bounces is not None) == (
         model == "traced")
+
+
+def test_env_update_smoothing_blurs_the_steps_of_cells_the_photos_do_not_see():
+    """light.update_smooth: one step moves the log env map by blur(plain step) on the cells no
+    background pixel sees and by the plain step on the others (same seed, same batch); the
+    blurred step has far less pixel-to-pixel roughness there."""
+    from voxnero.material.lights import background_coverage
+    from voxnero.render.latlong import latlong_blur
+
+    geom, env, cache = _scene(2, 24, (2, 2, 2))
+    steps = {}
+    for sigma in (0.0, 1.0):
+        cfg = _cfg(1)
+        cfg.lr_env, cfg.bg_batch = 0.05, 64
+        cfg.light.update_smooth = sigma
+        tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None)
+        before = tr.env.log_radiance.detach().clone()
+        tr.train_step()
+        steps[sigma] = tr.env.log_radiance.detach() - before
+    plain, blurred = steps[0.0], steps[1.0]
+    unseen = background_coverage(cache.bg_dirs, plain.shape[0]) == 0
+    assert 0 < int(unseen.sum()) < unseen.numel()  # both kinds of cells in this scene
+    assert plain[unseen].abs().max() > 1e-3  # the unseen cells moved (through the object)
+    assert torch.allclose(blurred[unseen], latlong_blur(plain, 1.0)[unseen], atol=1e-6)
+    assert torch.allclose(blurred[~unseen], plain[~unseen], atol=1e-6)
+
+    def rough(x):
+        m = unseen[..., None] & torch.roll(unseen, 1, 1)[..., None]
+        return (((x - torch.roll(x, 1, 1)) ** 2) * m).sum()
+
+    assert rough(blurred) < 0.3 * rough(plain)

@@ -152,3 +152,19 @@ def read_envmap_np(path):
     from voxnero.io.exr import read_envmap
 
     return read_envmap(path)
+
+
+def test_latlong_blur_is_periodic_in_u_clamped_at_poles_and_keeps_constants():
+    from voxnero.render.latlong import latlong_blur
+
+    c = torch.full((8, 16, 3), 2.5)
+    assert torch.allclose(latlong_blur(c, 1.5), c, atol=1e-6)
+    d = torch.zeros(8, 16, 1)
+    d[4, 0] = 1.0  # a spike on the u seam spreads to both sides of it equally
+    b = latlong_blur(d, 1.0)
+    assert torch.allclose(b[4, 15], b[4, 1]) and float(b[4, 15, 0]) > 0.05
+    assert torch.allclose(b.sum(), torch.tensor(1.0), atol=1e-5)  # away from the poles
+    top = torch.zeros(8, 16, 1)
+    top[0] = 1.0  # a bright zenith row does not leak to the nadir (no wrap in v)
+    assert float(latlong_blur(top, 1.0)[-1].abs().max()) == 0.0
+    assert latlong_blur(d, 0.0) is d

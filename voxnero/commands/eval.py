@@ -46,7 +46,8 @@ DESCRIPTION = (
     "Keys (eval section): split, voxel, pred_pixels (unambiguous|mask|all), normal_source "
     "(vertex|face), views ([0, 3, ...]), images (number of comparison PNGs), material_views "
     "(stage 2: test views rendered, default 4, -1 all), material_spp (stage 2: [cos, ggx, env] "
-    "samples, default [8, 8, 8]), cull_dilate (captures: mask dilation in px, default 2).\n\n"
+    "samples, default [128, 128, 128]), material_subpixels (stage 2: points per pixel of the box "
+    "filter, default 16), cull_dilate (captures: mask dilation in px, default 2).\n\n"
     "A capture with object masks and no ground truth (NeuS/IDR, e.g. DTU): the mesh is culled by "
     "the training views' masks, then silhouette IoU / precision / recall at the held-out views "
     "(and PSNR inside the masks for a stage-2 run).")

@@ -56,6 +56,7 @@ class LightConfig:
 
     RANGES: ClassVar[dict[str, Range]] = {
         "env_height": at_least(4, 4096), "upsample_at": FRACTION, "env_smooth": WEIGHT,
+        "update_smooth": Range(0.0, 16.0),
         "bounces": at_least(0, 16), "rr_bounces": at_least(0, 16),
         "rr_survive": Range(0.0, 1.0, lo_open=True), "bounce_spp": at_least(1, 64)}
 
@@ -81,6 +82,14 @@ class LightConfig:
     """Samples per strategy (cosine, GGX, env) at every secondary hit."""
     env_smooth: float = 1e-4
     """Weight of a total-variation prior on the log env map (fills directions never seen)."""
+    update_smooth: float = 1.0
+    """Gaussian sigma (pixels of the current map) of each Adam step of the log env map on the
+    cells no background pixel sees: there the map moves by ``blur(new - old)``. Those cells are
+    learned only through the object's Monte Carlo shading, a sparse and noisy gradient that
+    Adam turns into full-size steps (speckle in a mirror's sky, over a room's lamps); the
+    blur spreads each step over neighbours. Cells the photos see keep plain steps (blurring
+    them too slowed the sharp background: −2.6 dB on sphere_gold's test views). 0 = plain.
+    Measured in docs/BENCHMARKS.md, session 11."""
 
 
 @dataclass
@@ -97,9 +106,11 @@ class RenderConfig:
     """GGX visible-normal samples per pixel and estimate (training)."""
     spp_env: int = 4
     """Env-map importance samples per pixel and estimate (training)."""
-    eval_scale: int = 6
-    """Evaluation renders use ``eval_scale`` times the training samples."""
-    eval_subpixels: int = 4
+    eval_scale: int = 8
+    """Evaluation renders use ``eval_scale`` times the training samples (32 per strategy: a
+    quick look that reads 1-2 dB under ``voxnero eval``'s 128, whose renders have converged to
+    0.3 dB; docs/BENCHMARKS.md, session 11)."""
+    eval_subpixels: int = 16
     """Evaluation renders average this many stratified points per pixel (the box filter of the
     photos; the samples are split among them, 1 = pixel centres)."""
     decorrelate: bool = True

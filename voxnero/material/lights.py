@@ -35,6 +35,33 @@ LOG_MIN, LOG_MAX = -12.0, 8.0
 (linear 6e-6 .. 3e3; stage 1 clamps only above, at its ``light.max_log_radiance``)."""
 
 
+def _cells(dirs: Tensor, height: int) -> Tensor:
+    """(M,) flat index of the env-map cell (nearest pixel) of each unit direction, (M, 3)."""
+    H, W = height, 2 * height
+    uv = dir_to_uv(dirs.double())
+    x = torch.floor(uv[:, 0] * W).long() % W
+    y = torch.round(uv[:, 1] * (H - 1)).long().clamp(0, H - 1)
+    return y * W + x
+
+
+def background_coverage(dirs: Tensor, height: int) -> Tensor:
+    """How many background pixels look along each env-map cell (nearest pixel).
+
+    Args:
+        dirs: (M, 3) unit directions of the photos' background pixels.
+        height: map height H (width 2H).
+
+    Returns:
+        (H, 2H) float counts; 0 where the photos never see the environment directly (there
+        the map is learned only through the object's reflections and shading).
+    """
+    cnt = torch.zeros(height * 2 * height)
+    if dirs.shape[0]:
+        idx = _cells(dirs.cpu(), height)
+        cnt.index_add_(0, idx, torch.ones_like(idx, dtype=torch.float32))
+    return cnt.view(height, 2 * height)
+
+
 def init_from_background(dirs: Tensor, rgb: Tensor, height: int) -> Tensor:
     """Average background pixels into env-map cells (nearest pixel); unseen cells get the mean.
 
@@ -48,14 +75,9 @@ def init_from_background(dirs: Tensor, rgb: Tensor, height: int) -> Tensor:
     """
     H, W = height, 2 * height
     out = torch.zeros(H * W, 3)
-    cnt = torch.zeros(H * W)
     if dirs.shape[0]:
-        uv = dir_to_uv(dirs.double())
-        x = torch.floor(uv[:, 0] * W).long() % W
-        y = torch.round(uv[:, 1] * (H - 1)).long().clamp(0, H - 1)
-        idx = y * W + x
-        out.index_add_(0, idx, rgb.float())
-        cnt.index_add_(0, idx, torch.ones_like(idx, dtype=torch.float32))
+        out.index_add_(0, _cells(dirs, height), rgb.float())
+    cnt = background_coverage(dirs, height).view(-1)
     seen = cnt > 0
     mean = out[seen].sum(0) / cnt[seen].sum() if seen.any() else torch.full((3,), 0.5)
     out = torch.where(seen[:, None], out / cnt.clamp_min(1)[:, None], mean)

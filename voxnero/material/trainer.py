@@ -30,10 +30,16 @@ from voxnero.fields.lights import EnvLight
 from voxnero.io.color import linear_to_srgb
 from voxnero.material.config import MaterialConfig
 from voxnero.material.field import make_field
-from voxnero.material.lights import LOG_MAX, LOG_MIN, IndirectLight, init_from_background
+from voxnero.material.lights import (
+    LOG_MAX,
+    LOG_MIN,
+    IndirectLight,
+    background_coverage,
+    init_from_background,
+)
 from voxnero.material.render import Bounces, Strategies, env_sampler, shade
 from voxnero.material.surface import Geometry, SurfaceCache
-from voxnero.render.latlong import envmap_lookup
+from voxnero.render.latlong import envmap_lookup, latlong_blur
 from voxnero.render.sampling import sample_cosine
 from voxnero.safety import fingerprint
 from voxnero.safety.guard import NonFiniteGuard, check_finite, nonfinite
@@ -164,6 +170,7 @@ class MaterialTrainer:
         self.step = 0
         self.sources = dict(sources or {})
         self.guard = NonFiniteGuard("material", self._nonfinite_cause, NONFINITE_FIX)
+        self._unseen: torch.Tensor | None = None  # (H, W, 1) env cells no photo sees directly
         self._make_optimisers()
 
     # ------------------------------------------------------------------ setup
@@ -276,7 +283,7 @@ class MaterialTrainer:
                          if p.grad is not None)
         if finite:
             self.opt_mat.step()
-            self.opt_env.step()
+            self._env_step()
         else:  # never let one bad batch poison the parameters: skip the update
             self.opt_mat.zero_grad(set_to_none=True)
             self.opt_env.zero_grad(set_to_none=True)
@@ -285,6 +292,23 @@ class MaterialTrainer:
         out = {k: float(v.detach()) for k, v in terms.items()}
         out["loss"] = float(loss.detach())
         return out
+
+    def _env_step(self) -> None:
+        """Adam step of the env map; with ``light.update_smooth`` the step is blurred on the
+        cells the photos never see directly (see LightConfig) and kept as is on the others."""
+        sigma = float(self.cfg.light.update_smooth)
+        p = self.env.log_radiance
+        before = p.detach().clone() if sigma > 0 else None
+        self.opt_env.step()
+        if before is None:
+            return
+        H = int(p.shape[0])
+        if self._unseen is None or self._unseen.shape[0] != H:
+            cov = background_coverage(self.cache.bg_dirs, H)
+            self._unseen = (cov == 0).float()[..., None].to(p.device)
+        with torch.no_grad():
+            step = p - before
+            p.copy_(before + step + self._unseen * (latlong_blur(step, sigma) - step))
 
     def _nonfinite_cause(self) -> str:
         """The likely cause of a loss that stays non-finite (data first, then state)."""

@@ -191,3 +191,30 @@ def rotate_dirs(d: Tensor, up: str = "z", yaw_deg: float = 0.0) -> Tensor:
     Rz = torch.tensor([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
     M = (Rz @ R).to(d.dtype).to(d.device)
     return d @ M.T
+
+
+def latlong_blur(img: Tensor, sigma: float) -> Tensor:
+    """Gaussian blur of a lat-long map in pixel units: periodic in u, clamped at the poles.
+
+    Used on stage 2's env-map *updates* (``material.light.update_smooth``). A constant map is
+    unchanged and the kernel sums to 1, so a blurred step is a positive-definite
+    preconditioning of the plain one: it spreads each step over neighbouring pixels without
+    changing where the optimisation stops.
+
+    Args:
+        img: (H, W, C) map (any values: linear, log, or a difference of two maps).
+        sigma: standard deviation in pixels of this map (same in u and v); <= 0 returns img.
+
+    Returns:
+        (H, W, C) blurred map.
+    """
+    if sigma <= 0:
+        return img
+    from kornia.filters import gaussian_blur2d
+
+    r = max(1, int(math.ceil(2.0 * sigma)))
+    x = img.permute(2, 0, 1)[None]
+    x = torch.cat([x[..., -r:], x, x[..., :r]], dim=-1)  # wrap in u; kornia pads v (replicate)
+    y = gaussian_blur2d(x, (2 * r + 1, 2 * r + 1), (float(sigma), float(sigma)),
+                        border_type="replicate")
+    return y[..., r:-r][0].permute(1, 2, 0)
