@@ -39,8 +39,8 @@ class EvalConfig:
     material_spp: list[int] = field(default_factory=lambda: [128, 128, 128])
     """Stage-2 runs: samples per pixel of the renders (cosine, GGX, env-map strategies); 4× what
     ``voxnero material``'s own quick evaluation uses. The score is the model's, not the
-    estimator's noise: on the corpus's true meshes, object PSNR rises by 3-4 dB
-    from 8 samples on 4 subpixels to 128 on 16 and by at most 0.3 dB from 128 to 256
+    estimator's noise: on the corpus's true meshes, object PSNR rises by 1.7-6.9 dB
+    from 8 samples on 4 subpixels to 128 on 16 and by about 0.3 dB at most from 128 to 256
     (docs/BENCHMARKS.md, session 11)."""
     material_subpixels: int = 16
     """Stage-2 runs: stratified points per pixel averaged in linear radiance, the box filter the

@@ -55,11 +55,8 @@ def background_coverage(dirs: Tensor, height: int) -> Tensor:
         (H, 2H) float counts; 0 where the photos never see the environment directly (there
         the map is learned only through the object's reflections and shading).
     """
-    cnt = torch.zeros(height * 2 * height)
-    if dirs.shape[0]:
-        idx = _cells(dirs.cpu(), height)
-        cnt.index_add_(0, idx, torch.ones_like(idx, dtype=torch.float32))
-    return cnt.view(height, 2 * height)
+    idx = _cells(dirs.cpu(), height)
+    return torch.bincount(idx, minlength=2 * height * height).float().view(height, 2 * height)
 
 
 def init_from_background(dirs: Tensor, rgb: Tensor, height: int) -> Tensor:
@@ -74,10 +71,9 @@ def init_from_background(dirs: Tensor, rgb: Tensor, height: int) -> Tensor:
         (H, 2H, 3) linear map.
     """
     H, W = height, 2 * height
-    out = torch.zeros(H * W, 3)
-    if dirs.shape[0]:
-        out.index_add_(0, _cells(dirs, height), rgb.float())
-    cnt = background_coverage(dirs, height).view(-1)
+    idx = _cells(dirs, height)
+    out = torch.zeros(H * W, 3).index_add_(0, idx, rgb.float())
+    cnt = torch.bincount(idx, minlength=H * W).float()
     seen = cnt > 0
     mean = out[seen].sum(0) / cnt[seen].sum() if seen.any() else torch.full((3,), 0.5)
     out = torch.where(seen[:, None], out / cnt.clamp_min(1)[:, None], mean)
