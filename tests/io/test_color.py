@@ -92,3 +92,19 @@ def test_tonemap_closed_form():
     np.testing.assert_allclose(tonemap(x, exposure=2.0), tonemap(2.0 * x), atol=1e-12)
     y = tonemap(x)
     assert y[0] == 0 and np.all(np.diff(y) > 0) and np.all(y < 1)
+
+
+@given(st.floats(0.0, 1.0))
+def test_srgb_slope_is_the_derivative_of_the_encoding(x):
+    """srgb_slope equals a central finite difference of linear_to_srgb (float64, step 1e-7,
+    away from the knee where the curve has a kink) and agrees between numpy and torch; at or
+    above 1 it is the slope at 1 (the encoding clips there)."""
+    from voxnero.io.color import LINEAR_KNEE, srgb_slope
+
+    h = 1e-7
+    if abs(x - LINEAR_KNEE) > 2 * h and h < x < 1 - h:
+        fd = (linear_to_srgb(np.float64(x + h)) - linear_to_srgb(np.float64(x - h))) / (2 * h)
+        assert abs(float(srgb_slope(np.float64(x))) - fd) < 1e-5 * max(1.0, fd)
+    t = float(srgb_slope(torch.tensor(x, dtype=torch.float64)))
+    assert abs(t - float(srgb_slope(np.float64(x)))) < 1e-12
+    assert float(srgb_slope(np.float64(3.0))) == float(srgb_slope(np.float64(1.0)))

@@ -100,3 +100,46 @@ def test_indirect_true_is_decided_like_stage2_from_the_visible_points():
     assert indirect_model(True, sphere, (tri, bary)) == "splitsum"
     assert indirect_model(True) == "traced" and indirect_model(False) == "off"
     assert indirect_model("splitsum", plates, (tri, bary)) == "splitsum"
+
+
+def _noisy(value: float, sigma: float, seed: int = 0, size: int = 64):
+    """A render function: a constant linear image plus Gaussian noise of std ``sigma`` per
+    pass (independent passes), and a counter of the calls."""
+    g = torch.Generator().manual_seed(seed)
+    calls = []
+
+    def render():
+        calls.append(1)
+        rgb = value + sigma * torch.randn(size, size, 3, generator=g)
+        return {"rgb": rgb, "hit": torch.ones(size, size, dtype=torch.bool)}
+    return render, calls
+
+
+def test_converged_render_estimates_its_noise_and_stops_at_the_share():
+    """Photo 0.2 (linear), model 0.21 (bias 0.01), noise σ = 0.02 per pass: in sRGB the
+    error² is (g'·0.01)² and the noise of the mean of k passes (g'·0.02)²/k, so noise ≤ 0.1 ×
+    (bias² + noise) first holds at k = 37 (4/k ≤ 0.1 (1 + 4/k)): with 8 passes at most, all 8
+    run and the estimated noise PSNR matches the closed form within 0.5 dB; with a bias of 0.05,
+    4/25/k ≤ 0.1 (1 + 4/25/k) holds from k = 2, so it stops after 2 passes."""
+    import math
+
+    from voxnero.io.color import srgb_slope
+    from voxnero.material.evaluate import render_converged
+
+    target = torch.full((64, 64, 3), 0.2)
+    mask = torch.ones(64, 64, dtype=torch.bool)
+    render, calls = _noisy(0.21, 0.02)
+    out, info = render_converged(render, target, mask, max_passes=8, noise_share=0.1)
+    assert info["passes"] == 8 and len(calls) == 8
+    expect = -10 * math.log10(float(srgb_slope(torch.tensor(0.21))) ** 2 * 0.02 ** 2 / 8)
+    assert abs(info["noise_psnr"] - expect) < 0.5, (info, expect)
+    assert abs(float(out["rgb"].mean()) - 0.21) < 1e-3  # the mean of the passes
+    assert float(out["rgb"].std()) < 0.02 / math.sqrt(8) * 1.1
+
+    render, calls = _noisy(0.25, 0.02, seed=1)
+    _, info = render_converged(render, target, mask, max_passes=8, noise_share=0.1)
+    assert info["passes"] == 2 and len(calls) == 2, info
+
+    render, calls = _noisy(0.25, 0.02, seed=2)
+    _, info = render_converged(render, target, mask, max_passes=1)
+    assert info["passes"] == 1 and len(calls) == 1 and math.isnan(info["noise_psnr"])

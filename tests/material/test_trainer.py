@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from tests.material.stage2_scene import ring_cameras, smooth_env, sphere_geometry
@@ -15,6 +16,7 @@ from voxnero.material.trainer import (
     TRACED_HIT_MIN,
     MaterialTrainer,
     decide_secondary,
+    decorrelated_loss,
 )
 from voxnero.render.latlong import envmap_lookup
 
@@ -208,3 +210,58 @@ def test_env_update_smoothing_blurs_the_steps_of_cells_the_photos_do_not_see():
         return (((x - torch.roll(x, 1, 1)) ** 2) * m).sum()
 
     assert rough(blurred) < 0.3 * rough(plain)
+
+
+@pytest.mark.parametrize("mean", [0.002, 0.02, 0.1])
+def test_linearised_decorrelated_loss_has_no_gradient_at_the_true_mean(mean):
+    """Two independent noisy estimates p = mu * Z² (E Z² = 1, std 1.4: a noisy highlight) of a
+    pixel whose photo is t = mu: the expected gradient of the linearised loss in mu is 0, while
+    the sRGB-space product loss pushes mu up (E g(p) < g(E p), g concave), the bias the
+    linearised loss removes. Means where p rarely exceeds 1 (the clip at 1 keeps a bias of its
+    own). 4e5 draws in 20 chunks; bounds of 4 standard errors of the chunk mean."""
+    n = 400_000
+    x = torch.randn(2 * n, 3, generator=torch.Generator().manual_seed(3),
+                    dtype=torch.float64) ** 2
+    t = torch.full((n, 3), mean, dtype=torch.float64)
+    res = {}
+    for lin in (True, False):
+        per = []
+        for chunk in torch.split(torch.arange(n), n // 20):
+            mu = torch.tensor(mean, dtype=torch.float64, requires_grad=True)
+            loss, _ = decorrelated_loss(mu * torch.cat([x[chunk], x[n + chunk]]), t[chunk],
+                                        linearised=lin)
+            per.append(torch.autograd.grad(loss, mu)[0])
+        per = torch.stack(per)
+        res[lin] = (float(per.mean()), float(per.std() / len(per) ** 0.5))
+    (g_lin, se_lin), (g_srgb, se_srgb) = res[True], res[False]
+    assert abs(g_lin) < 4 * se_lin, res
+    assert g_srgb < -4 * se_srgb, res  # gradient descent raises mu above the truth
+
+
+def test_hold_brdf_keeps_metallic_and_roughness_until_the_loss_is_linearised():
+    """With ``hold_brdf`` the raw metallic and roughness channels (base and per-vertex) do not
+    move before ``linearise_after`` × iters while albedo does; after it they move. Without it
+    they move from the first steps."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        geom, env, cache = _scene(n_views=2, size=16, spp=(4, 4, 4))
+        for hold in (True, False):
+            cfg = _cfg(8)
+            cfg.field.kind = "vertex"
+            cfg.render.linearise_after, cfg.render.hold_brdf = 0.5, hold
+            tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)
+            start = [p.detach().clone() for p in (tr.field.base, tr.field.residual)]
+            for _ in range(4):
+                tr.train_step()
+            base, res = tr.field.base.detach(), tr.field.residual.detach()
+            moved_lobe = not (torch.equal(base[3:], start[0][3:])
+                              and torch.equal(res[:, 3:], start[1][:, 3:]))
+            assert not torch.equal(base[:3], start[0][:3])  # albedo learns in both
+            assert moved_lobe != hold, (hold, base, start[0])
+            if hold:
+                for _ in range(4):
+                    tr.train_step()
+                assert not torch.equal(tr.field.base.detach()[3:], start[0][3:])
+    finally:
+        torch.set_num_threads(old)

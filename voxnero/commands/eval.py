@@ -13,7 +13,9 @@ and ``config.yaml`` into ``--out``. Protocols: :mod:`voxnero.eval.chamfer`,
 reported as not evaluated; for a stage-2 run, Chamfer / normal error are computed on the stage-1
 mesh it was fitted on (``_meta.mesh`` of its config; ``model.glb``'s mesh if that file is gone)
 and the exported asset (``model.glb`` textures + ``envmap.exr``) is rendered at
-``eval.material_views`` test views with ``eval.material_spp`` samples by
+``eval.material_views`` test views, each the mean of 2 to ``eval.material_passes`` renders of
+``eval.material_spp`` samples (until the estimated Monte Carlo noise is
+``eval.material_noise_share`` of the error), by
 :func:`voxnero.material.evaluate.evaluate_scene`: novel-view PSNR/SSIM, relighting PSNR/SSIM,
 albedo PSNR, metallic / roughness MAE, plus ``render_<view>.png`` comparisons.
 
@@ -46,7 +48,9 @@ DESCRIPTION = (
     "Keys (eval section): split, voxel, pred_pixels (unambiguous|mask|all), normal_source "
     "(vertex|face), views ([0, 3, ...]), images (number of comparison PNGs), material_views "
     "(stage 2: test views rendered, default 4, -1 all), material_spp (stage 2: [cos, ggx, env] "
-    "samples, default [128, 128, 128]), material_subpixels (stage 2: points per pixel of the box "
+    "samples of one render pass, default [64, 64, 64]), material_passes (stage 2: at most this "
+    "many passes per view, default 8; they stop once their noise is material_noise_share, "
+    "default 0.1, of the error), material_subpixels (stage 2: points per pixel of the box "
     "filter, default 16), cull_dilate (captures: mask dilation in px, default 2).\n\n"
     "A capture with object masks and no ground truth (NeuS/IDR, e.g. DTU): the mesh is culled by "
     "the training views' masks, then silhouette IoU / precision / recall at the held-out views "

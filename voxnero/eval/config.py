@@ -17,7 +17,8 @@ class EvalConfig:
     RANGES: ClassVar[dict[str, Range]] = {
         "voxel": Range(0.0, 1e6), "views": at_least(0), "images": at_least(0, 10000),
         "material_views": at_least(1, also=(-1,)), "material_spp": at_least(0, 4096),
-        "material_subpixels": at_least(1, 1024), "cull_dilate": at_least(0, 64)}
+        "material_subpixels": at_least(1, 1024), "cull_dilate": at_least(0, 64),
+        "material_passes": at_least(2, 64), "material_noise_share": Range(0.0, 1.0)}
     """Allowed values (:func:`voxnero.config.check_numbers`), checked before ``validate``."""
 
     split: str = "test"
@@ -36,12 +37,22 @@ class EvalConfig:
     material_views: int = 4
     """Stage-2 runs: test views rendered for the image / material metrics, evenly spread
     (-1: all; ``voxnero material`` itself uses all)."""
-    material_spp: list[int] = field(default_factory=lambda: [128, 128, 128])
-    """Stage-2 runs: samples per pixel of the renders (cosine, GGX, env-map strategies); 4× what
-    ``voxnero material``'s own quick evaluation uses. The score is the model's, not the
-    estimator's noise: on the corpus's true meshes, object PSNR rises by 1.7-6.9 dB
-    from 8 samples on 4 subpixels to 128 on 16 and by about 0.3 dB at most from 128 to 256
-    (docs/BENCHMARKS.md, session 11)."""
+    material_spp: list[int] = field(default_factory=lambda: [64, 64, 64])
+    """Stage-2 runs: samples per pixel of one render pass (cosine, GGX, env-map strategies).
+    A view is the mean of 2 to ``material_passes`` passes (see there): 128 per strategy at
+    least, 4x what ``voxnero material``'s own quick evaluation uses. The score is the model's,
+    not the estimator's noise: on the corpus's true meshes, object PSNR rises by 1.7-6.9 dB
+    from 8 samples on 4 subpixels to 128 on 16 (docs/BENCHMARKS.md, session 11)."""
+    material_passes: int = 8
+    """Stage-2 runs: at most this many passes per view; passes stop once the Monte Carlo noise
+    of their mean, estimated from their spread, is ``material_noise_share`` of the error against
+    the photo in the scored pixels (``voxnero.material.evaluate.render_converged``). A
+    concave glossy object (the corpus's mug) needs more than 128 samples: its object PSNR at
+    64 / 256 samples on the TRUE material is 24.2 / 28.2 dB (docs/BENCHMARKS.md, session 12).
+    Relit renders of a view use the passes of its novel view."""
+    material_noise_share: float = 0.1
+    """Stage-2 runs: the noise share of the error at which passes stop (noise then costs at
+    most 0.46 dB of PSNR)."""
     material_subpixels: int = 16
     """Stage-2 runs: stratified points per pixel averaged in linear radiance, the box filter the
     photos were made with (the samples above are split among them; 1 = pixel centres)."""

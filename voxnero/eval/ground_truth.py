@@ -14,8 +14,9 @@ def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]
 
     The exported asset is what is scored: ``model.glb`` (mesh + baked textures, read by
     :func:`voxnero.asset.load.load_asset`) and ``envmap.exr``, rendered at ``cfg.material_views``
-    test views with ``cfg.material_spp`` samples; indirect light / visibility casts as the run
-    decided (``decisions`` in ``materials.json``).
+    test views, each the mean of up to ``cfg.material_passes`` renders of ``cfg.material_spp``
+    samples (:func:`voxnero.material.evaluate.render_converged`); indirect light / visibility
+    casts as the run decided (``decisions`` in ``materials.json``).
 
     Args:
         run: the ``voxnero material`` output folder.
@@ -56,7 +57,8 @@ def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]
     spp = Strategies(*(int(x) for x in cfg.material_spp))
     res = evaluate_scene(scene_path, geom, asset.field, env, spp, indirect, visibility,
                          views=cfg.material_views, out_dir=None, log=lambda _: None,
-                         subpixels=cfg.material_subpixels)
+                         subpixels=cfg.material_subpixels, passes=cfg.material_passes,
+                         noise_share=cfg.material_noise_share)
     if not res:
         return {"novel_view": "not evaluated: the scene has no test split"}, {}
     res.update(asset=str(run / "model.glb"), indirect=indirect, visibility=visibility)

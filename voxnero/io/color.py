@@ -79,6 +79,28 @@ def linear_to_srgb(x: Array) -> Array:
     return np.where(x <= LINEAR_KNEE, low, high).astype(x.dtype, copy=False)
 
 
+def srgb_slope(x: Array) -> Array:
+    """Derivative d linear_to_srgb / dL of the encoding at linear values x in [0, 1].
+
+    ``12.92`` on the linear segment (``L <= 0.0031308``), else ``(1.055 / 2.4) L^(1/2.4 - 1)``
+    (12.7 at the knee, 0.44 at 1); values above 1 get the slope at 1 (the encoding clips there).
+
+    Args:
+        x: linear values, any shape.
+
+    Returns:
+        Slopes, same shape/type (float), in [0.43, 12.92].
+    """
+    x = _as_float(x)
+    if _is_torch(x):
+        x = x.clamp(0.0, 1.0)
+        high = (1.055 / 2.4) * x.clamp_min(LINEAR_KNEE) ** (1.0 / 2.4 - 1.0)
+        return torch.where(x <= LINEAR_KNEE, torch.full_like(x, 12.92), high)
+    x = np.clip(x, 0.0, 1.0)
+    high = (1.055 / 2.4) * np.maximum(x, LINEAR_KNEE) ** (1.0 / 2.4 - 1.0)
+    return np.where(x <= LINEAR_KNEE, 12.92, high).astype(x.dtype, copy=False)
+
+
 def tonemap(x: Array, exposure: float = 1.0) -> Array:
     """Tone map linear HDR radiance to sRGB-encoded [0, 1] values for PNG previews.
 

@@ -24,6 +24,8 @@ were made:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -150,6 +152,59 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
     return {k: v.cpu() for k, v in out.items()}
 
 
+def render_converged(render: Callable[[], dict[str, torch.Tensor]], target: torch.Tensor,
+                     mask: torch.Tensor, max_passes: int, noise_share: float = 0.1
+                     ) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
+    """Average independent renders of one view until their Monte Carlo noise is a small share
+    of the error against the photo, so that a score measures the model, not the estimator.
+
+    After pass k >= 2 the noise variance of the mean image M is var_k(L) / k per pixel and
+    channel (linear, unbiased sample variance across the passes), carried to sRGB by the
+    encoding's slope (delta method; 0 where M >= 1, which the encoding clips):
+    noise = mean over ``mask`` of g'(M)² var_k(L) / k. The error is the sRGB MSE of M against
+    ``target`` over ``mask`` (it includes that noise). Passes stop when noise <= ``noise_share``
+    × error (the noise then lowers the PSNR by at most −10 log10(1 − noise_share), 0.46 dB at
+    0.1) or after ``max_passes``.
+
+    Args:
+        render: one independent render of the view (:func:`render_view`'s dict; each call
+            draws new samples).
+        target: (H, W, 3) linear photo.
+        mask: (H, W) bool pixels scored.
+        max_passes: at most this many renders (1: a single render, no noise estimate).
+        noise_share: see above, in (0, 1).
+
+    Returns:
+        (the first render's dict with ``rgb`` replaced by the mean, info) with info
+        ``passes``, ``noise_share`` (the last estimate, NaN after one pass) and ``noise_psnr``
+        (10 log10(1 / noise), dB).
+    """
+    from voxnero.io.color import linear_to_srgb, srgb_slope
+
+    first = render()
+    if max_passes <= 1 or not mask.any():
+        return first, {"passes": 1, "noise_share": float("nan"), "noise_psnr": float("nan")}
+    s = first["rgb"].double()
+    q = s ** 2
+    k = 1
+    share = noise = float("nan")
+    g_t = linear_to_srgb(target.double().clamp(0, 1))[mask]
+    while k < max_passes:
+        r = render()["rgb"].double()
+        s, q, k = s + r, q + r ** 2, k + 1
+        mean = s / k
+        var = ((q - k * mean ** 2) / (k - 1)).clamp_min(0.0)
+        slope = torch.where(mean < 1, srgb_slope(mean), torch.zeros_like(mean))
+        noise = float((slope ** 2 * var / k)[mask].mean())
+        err = float(((linear_to_srgb(mean.clamp(0, 1))[mask] - g_t) ** 2).mean())
+        share = noise / max(err, 1e-20)
+        if share <= noise_share:
+            break
+    out = dict(first, rgb=(s / k).to(first["rgb"].dtype))
+    return out, {"passes": k, "noise_share": share,
+                 "noise_psnr": 10.0 * math.log10(1.0 / noise) if noise > 0 else float("inf")}
+
+
 def _mean(xs: list[float]) -> float:
     xs = [min(x, 100.0) for x in xs if not math.isnan(x)]
     return float(np.mean(xs)) if xs else float("nan")
@@ -158,8 +213,8 @@ def _mean(xs: list[float]) -> float:
 def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: torch.Tensor,
                    spp: Strategies, indirect: bool | str, visibility: bool = True,
                    views: int = -1, out_dir: str | Path | None = None,
-                   log=print, subpixels: int = 4, bounces: Bounces | None = None
-                   ) -> dict[str, Any]:
+                   log=print, subpixels: int = 4, bounces: Bounces | None = None,
+                   passes: int = 1, noise_share: float = 0.1) -> dict[str, Any]:
     """Novel-view, relighting and material-map metrics on a scene's test views.
 
     Args:
@@ -173,6 +228,9 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
         out_dir: where to write comparison PNGs (``eval/``), or None.
         subpixels: points per pixel of the box filter (:func:`render_view`).
         bounces: the traced model's bounces (:func:`render_view`).
+        passes, noise_share: each test view is the mean of up to ``passes`` independent
+            renders of ``spp``, stopped once their noise is ``noise_share`` of the error in the
+            scored pixels (:func:`render_converged`); its relit renders use as many passes.
 
     Returns:
         Metrics dict (JSON-friendly); empty if the scene has no test split.
@@ -203,11 +261,16 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
     nv = {"psnr": [], "ssim": [], "psnr_object": []}
     mat = {"metallic_mae": [], "roughness_mae": [], "albedo_psnr": []}
     renders = {}
+    conv: dict[int, dict[str, float]] = {}
     for i in pick:
-        r = render_view(geom, field, env_image, test.cameras, i, spp, indirect, visibility,
-                        generator=gen, subpixels=subpixels, bounces=bounces)
-        renders[i] = r
         gt = test.images[i]
+        scored = ((test.masks[i] >= 1 - 0.5 / 255) if test.masks is not None
+                  else torch.ones(gt.shape[:2], dtype=torch.bool))
+        r, conv[i] = render_converged(
+            partial(render_view, geom, field, env_image, test.cameras, i, spp, indirect,
+                    visibility, generator=gen, subpixels=subpixels, bounces=bounces),
+            gt, scored, passes, noise_share)
+        renders[i] = r
         pred = srgb(r["rgb"])
         nv["psnr"].append(psnr(pred, srgb(gt)))
         nv["ssim"].append(ssim(pred, srgb(gt)))
@@ -228,6 +291,10 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
         if out is not None:
             write_png(out / f"test_{name}.png", torch.cat([pred, srgb(gt)], 1))
     res["novel_view"] = {k: _mean(v) for k, v in nv.items()}
+    if passes > 1:  # the estimator's own noise, from the spread of the passes
+        res["passes"] = {"per_view": [conv[i]["passes"] for i in pick],
+                         "noise_share": [round(conv[i]["noise_share"], 4) for i in pick],
+                         "noise_psnr_object": [round(conv[i]["noise_psnr"], 2) for i in pick]}
     res["materials"] = {k: _mean(v) for k, v in mat.items()}
     log(f"[material] test views: PSNR {res['novel_view']['psnr']:.2f} dB (object "
         f"{res['novel_view']['psnr_object']:.2f} dB), metallic MAE "
@@ -240,8 +307,11 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
         env_new = torch.from_numpy(read_envmap(root / "gt" / f"envmap_{env_name}.exr")).float()
         vals = {"psnr": [], "ssim": []}
         for i in pick:
-            r = render_view(geom, field, env_new, sp.cameras, i, spp, indirect, visibility,
-                            generator=gen, subpixels=subpixels, bounces=bounces)
+            r, _ = render_converged(
+                partial(render_view, geom, field, env_new, sp.cameras, i, spp, indirect,
+                        visibility, generator=gen, subpixels=subpixels, bounces=bounces),
+                sp.images[i], torch.ones(sp.images[i].shape[:2], dtype=torch.bool),
+                conv[i]["passes"], 0.0)
             full = (test.masks[i] >= 1 - 0.5 / 255) if test.masks is not None else r["hit"]
             full = full & r["hit"]
             if not full.any():

@@ -27,7 +27,7 @@ import torch
 
 from voxnero.errors import RunFolderError
 from voxnero.fields.lights import EnvLight
-from voxnero.io.color import linear_to_srgb
+from voxnero.io.color import linear_to_srgb, srgb_slope
 from voxnero.material.config import MaterialConfig
 from voxnero.material.field import make_field
 from voxnero.material.lights import (
@@ -52,6 +52,38 @@ NONFINITE_FIX = ("lower lr_material / lr_env, check the mesh (input frame) and t
 def srgb_clipped(lin: torch.Tensor) -> torch.Tensor:
     """sRGB encoding of linear values clipped to [0, 1] (how the 8-bit inputs were made)."""
     return linear_to_srgb(lin.clamp(0.0, 1.0))
+
+
+def decorrelated_loss(pred: torch.Tensor, target: torch.Tensor, linearised: bool = True
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Object loss of two independent Monte Carlo estimates of the same pixels.
+
+    E[(p1 − t)(p2 − t)] = (E p − t)²: no variance term, which would favour materials whose
+    estimate is less noisy. ``linearised``: the sRGB error linearised at the photo,
+    g'(t)² (p1 − t)(p2 − t) on linear values clipped to [0, 1] (g = sRGB encoding), whose
+    expectation is g'(t)² (E p − t)²: zero gradient at E p = t. Otherwise
+    (g(p1) − g(t))(g(p2) − g(t)), whose minimum lies at E g(p) = g(t), i.e. at E p > t by
+    Jensen (g is concave): a noisy estimate is pushed brighter, or toward a less noisy lobe.
+
+    Args:
+        pred: (2B, 3) linear estimates, the first B and last B independent for the same
+            pixels.
+        target: (B, 3) linear photo values (decoded 8-bit sRGB, in [0, 1]).
+        linearised: see above.
+
+    Returns:
+        (loss, mse): the scalar loss (differentiable) and the detached sRGB MSE of the mean
+        of the two estimates (for logging).
+    """
+    p1, p2 = srgb_clipped(pred).chunk(2)
+    g_t = linear_to_srgb(target)
+    if linearised:
+        t = target.clamp(0.0, 1.0)
+        q1, q2 = pred.clamp(0.0, 1.0).chunk(2)
+        loss = (srgb_slope(t) ** 2 * (q1 - t) * (q2 - t)).mean()
+    else:
+        loss = ((p1 - g_t) * (p2 - g_t)).mean()
+    return loss, ((0.5 * (p1 + p2) - g_t) ** 2).mean().detach()
 
 
 def needs_indirect(geom: Geometry, cache: SurfaceCache, n_points: int = 4096,
@@ -234,13 +266,9 @@ class MaterialTrainer:
         sampler = env_sampler(img) if self.spp.env else None
         target = linear_to_srgb(c.rgb[idx])
         if cfg.render.decorrelate:
-            # two independent estimates of the same pixels: E[(p1 - t)(p2 - t)] = (E p - t)²
-            # has no Monte Carlo variance term, which would otherwise favour materials whose
-            # estimate is less noisy (e.g. lower roughness)
+            # two independent estimates of the same pixels (see decorrelated_loss)
             pred = self.render_pixels(torch.cat([idx, idx]), img, indirect, sampler)
-            p1, p2 = srgb_clipped(pred).chunk(2)
-            obj = ((p1 - target) * (p2 - target)).mean()
-            mse = ((0.5 * (p1 + p2) - target) ** 2).mean().detach()
+            obj, mse = decorrelated_loss(pred, c.rgb[idx], self._linearised)
         else:
             pred = self.render_pixels(idx, img, indirect, sampler)
             obj = ((srgb_clipped(pred) - target) ** 2).mean()
@@ -264,6 +292,21 @@ class MaterialTrainer:
             terms["env_smooth"] = cfg.light.env_smooth * self.env.smoothness()
         return terms
 
+    @property
+    def _linearised(self) -> bool:
+        """Whether this step's object loss is the linearised one (``render.linearise_after``)."""
+        after = self.cfg.render.linearise_after
+        return after < 1 and self.step >= after * self.cfg.iters
+
+    def _hold_brdf(self) -> None:
+        """Zero the gradients of the metallic and roughness channels (raw channels 3 and 4 of
+        every material parameter: the base (5,), per-vertex (V, 5) or grid (1, 5, R, R, R))."""
+        for p in self.field.parameters():
+            if p.grad is None:
+                continue
+            dim = 0 if p.dim() == 1 else 1
+            p.grad.narrow(dim, 3, 2).zero_()
+
     def train_step(self) -> dict[str, float]:
         """One optimisation step; returns the loss terms as floats."""
         self._maybe_upsample()
@@ -282,6 +325,8 @@ class MaterialTrainer:
             finite = all(bool(torch.isfinite(p.grad).all()) for p in params
                          if p.grad is not None)
         if finite:
+            if self.cfg.render.hold_brdf and not self._linearised:
+                self._hold_brdf()
             self.opt_mat.step()
             self._env_step()
         else:  # never let one bad batch poison the parameters: skip the update
