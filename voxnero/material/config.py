@@ -117,20 +117,22 @@ class RenderConfig:
     decorrelate: bool = True
     """Loss on two independent estimates per pixel, (p1 − t)(p2 − t), instead of (p − t)²:
     no Monte Carlo variance term in the expected loss (costs twice the samples)."""
-    linearise_after: float = 0.25
+    linearise_after: float = 0.5
     """With ``decorrelate``: from this fraction of ``iters`` on, the sRGB error linearised at
     the photo's value, g'(t)² (p1 − t)(p2 − t) in linear radiance (g the sRGB encoding),
     replaces (g(p1) − g(t))(g(p2) − g(t)) (1 = never). Both weight dark pixels as the 8-bit
     photos do, but only the linearised one is unbiased at the optimum: g is concave, so
-    E g(p) < g(E p), a noisy estimate reads darker in sRGB, and the fit repaid it with a
-    brighter albedo and a smoother (less noisy) lobe: roughness 0.013 for the corpus mug's 0.1.
-    Far from the optimum the linearised weights are not the sRGB error's (linearised from the
-    first step, the duck became a rough metal), so training starts in sRGB with ``hold_brdf``
+    E g(p) < g(E p), a noisy estimate reads darker, and the fit repays it with a brighter albedo
+    and a smoother (less noisy) lobe (corpus mug: blue albedo 0.78 for 0.60, roughness 0.013
+    for 0.1). Far from the optimum the linearised weights are not the sRGB error's (linearised
+    from the first step the corpus duck became a rough metal), so training starts in sRGB
     (docs/STAGE2.md, docs/BENCHMARKS.md session 12)."""
-    hold_brdf: bool = True
+    hold_brdf: bool = False
     """Before ``linearise_after``: metallic and roughness stay at their start values (their
-    gradients are zeroed) while albedo and light fit, so the biased sRGB phase cannot drive the
-    roughness down; after it all of them learn."""
+    gradients are zeroed) while albedo and light fit; after it all of them learn. It keeps the
+    sRGB phase from driving a dielectric's roughness to the floor (mug 0.076 for 0.1 with
+    ``linearise_after`` = 0.25), but the map learned meanwhile to suit the held material costs
+    a chrome object more than 1 dB, so it is off (docs/BENCHMARKS.md session 12)."""
     visibility: Switch = "auto"
     """Cast every secondary ray against the mesh (shadows / indirect). "auto": only when at
     least 0.1 % of cosine rays from the surface hit it (``trainer.SECONDARY_HIT_MIN``; a convex
