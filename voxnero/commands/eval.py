@@ -49,7 +49,7 @@ DESCRIPTION = (
     "(vertex|face), views ([0, 3, ...]), images (number of comparison PNGs), material_views "
     "(stage 2: test views rendered, default 4, -1 all), material_spp (stage 2: [cos, ggx, env] "
     "samples of one render pass, default [64, 64, 64]), material_passes (stage 2: at most this "
-    "many passes per view, default 8; they stop once their noise is material_noise_share, "
+    "many passes per view, default 4; they stop once their noise is material_noise_share, "
     "default 0.1, of the error), material_subpixels (stage 2: points per pixel of the box "
     "filter, default 16), cull_dilate (captures: mask dilation in px, default 2).\n\n"
     "A capture with object masks and no ground truth (NeuS/IDR, e.g. DTU): the mesh is culled by "

@@ -43,13 +43,15 @@ class EvalConfig:
     least, 4x what ``voxnero material``'s own quick evaluation uses. The score is the model's,
     not the estimator's noise: on the corpus's true meshes, object PSNR rises by 1.7-6.9 dB
     from 8 samples on 4 subpixels to 128 on 16 (docs/BENCHMARKS.md, session 11)."""
-    material_passes: int = 8
+    material_passes: int = 4
     """Stage-2 runs: at most this many passes per view; passes stop once the Monte Carlo noise
     of their mean, estimated from their spread, is ``material_noise_share`` of the error against
     the photo in the scored pixels (``voxnero.material.evaluate.render_converged``). A
     concave glossy object (the corpus's mug) needs more than 128 samples: its object PSNR at
     64 / 256 samples on the TRUE material is 24.2 / 28.2 dB (docs/BENCHMARKS.md, session 12).
-    Relit renders of a view use the passes of its novel view."""
+    Relit renders of a view use the passes of its novel view. 4 bounds the cost at twice the
+    session-11 evaluation (the knot: 3 passes, 363 s at load 5); 8 passes of the mug did not
+    finish in 40 minutes on a loaded machine."""
     material_noise_share: float = 0.1
     """Stage-2 runs: the noise share of the error at which passes stop (noise then costs at
     most 0.46 dB of PSNR)."""
