@@ -264,14 +264,13 @@ class MaterialTrainer:
         img = self.env.image()
         indirect = IndirectLight(img) if self.use_indirect else None
         sampler = env_sampler(img) if self.spp.env else None
-        target = linear_to_srgb(c.rgb[idx])
         if cfg.render.decorrelate:
             # two independent estimates of the same pixels (see decorrelated_loss)
             pred = self.render_pixels(torch.cat([idx, idx]), img, indirect, sampler)
             obj, mse = decorrelated_loss(pred, c.rgb[idx], self._linearised)
         else:
             pred = self.render_pixels(idx, img, indirect, sampler)
-            obj = ((srgb_clipped(pred) - target) ** 2).mean()
+            obj = ((srgb_clipped(pred) - linear_to_srgb(c.rgb[idx])) ** 2).mean()
             mse = obj.detach()
         terms = {"object": obj}
         self._mse = float(mse)
