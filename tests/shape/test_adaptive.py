@@ -339,3 +339,18 @@ def test_auto_drops_the_nets_on_a_convex_surface_and_off_never_measures(tmp_path
     assert not called and tr.model.occlusion is None
     tr, _ = _tiny_trainer(tmp_path / "c", {"occlusion": "on"})
     assert tr.model.occlusion is not None and tr.model.indirect is not None
+
+
+@pytest.mark.parametrize("size, fov_deg, cap, floor, expect", [
+    (256, 40.0, 256, 64, 256),   # the corpus: pi * 351.7 / 4 = 276 rows, capped
+    (256, 40.0, 1024, 64, 276),
+    (64, 40.0, 256, 64, 69),     # a tiny scene: no finer than its pixels resolve
+    (32, 40.0, 256, 64, 64),     # never below the main map
+])
+def test_env_rows_give_a_texel_of_four_pixels(size, fov_deg, cap, floor, expect):
+    f = 0.5 * size / math.tan(math.radians(0.5 * fov_deg))
+    K = torch.tensor([[f, 0.0, size / 2], [0.0, f, size / 2], [0.0, 0.0, 1.0]]).expand(5, 3, 3)
+    rows = adaptive.env_rows(K, cap, floor)
+    assert rows == expect
+    if floor < rows < cap:  # the texel spans ENV_TEXEL_PIXELS pixels of 1/f radians each
+        assert math.pi / rows * f == pytest.approx(adaptive.ENV_TEXEL_PIXELS, rel=0.01)

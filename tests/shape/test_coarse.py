@@ -179,3 +179,25 @@ def test_fitted_box_is_the_cube_around_the_solid_with_its_margin():
     assert hull.fitted_box(np.zeros_like(inside), b, 0.1, 1.0) is None
     big = hull.fitted_box(np.ones_like(inside), b, 0.5, 1.0)      # never beyond the limit
     assert np.allclose(big, b)
+
+
+def test_coarse_env_is_a_finer_copy_that_area_averages_back():
+    from voxnero.render import latlong
+    from voxnero.render.mip import resample_area
+    from voxnero.shape.starts import coarse_env
+
+    env = EnvLight(16)
+    d = latlong.pixel_dirs(16, 32)
+    with torch.no_grad():  # a smooth map: log radiance linear in the direction
+        env.log_radiance.copy_(0.5 * d[..., :1] + 0.3 * d[..., 2:] + torch.tensor([0.0, -0.2, 0.1]))
+    assert coarse_env(env, 0) is env and coarse_env(env, 16) is env
+    fine = coarse_env(env, 64)
+    assert fine is not env and fine.height == 64 and fine.max_log == env.max_log
+    # the same radiance along any direction (bilinear lookups of a smooth map)
+    dirs = torch.nn.functional.normalize(torch.randn(500, 3, generator=torch.Generator()
+                                                     .manual_seed(0)), dim=-1)
+    assert torch.allclose(fine.background(dirs), env.background(dirs), rtol=0.03)
+    # area-averaged back to 16 rows (as the SDF stage receives it) the map is the original
+    # (within 1.5 % away from the pole rows, whose cells average over the cap)
+    rel = (resample_area(fine.image(), 16, 32) / env.image() - 1.0).abs()
+    assert float(rel[1:-1].max()) < 0.015 and float(rel.mean()) < 0.01

@@ -353,3 +353,34 @@ def test_coarse_start_races_the_sphere_and_keeps_the_better_fit(scene, tmp_path)
     ref = 2.0 * cfg.grid.bound / (cfg.grid.res[0] - 1)
     expect = cfg.optim.lr_sdf * cfg.coarse.lr_sdf_factor * voxel / ref
     assert sdf_group["base_lr"] == pytest.approx(expect, rel=1e-3)
+
+
+def test_coarse_stage_fits_a_finer_env_map_and_hands_on_its_area_average(scene, tmp_path,
+                                                                         monkeypatch):
+    """With ``coarse.env_height`` above ``light.env_height`` the coarse stage fits its own finer
+    map; the SDF stage goes on at its own height with that map area-averaged (it has learned
+    the scene's light, not kept the uniform start), and the decision records the height."""
+    import voxnero.shape.coarse as coarse_mod
+    from voxnero.render.mip import resample_area
+
+    torch.manual_seed(0)
+    cfg = _coarse_cfg(60)
+    cfg.coarse.env_height = 64
+    cfg.light.background = "distant"  # the env map draws the (constant, 1.0) background
+    seen = {}
+    train = coarse_mod.train_coarse
+
+    def spy(model, env, *a, **k):
+        seen["env"] = env
+        return train(model, env, *a, **k)
+
+    monkeypatch.setattr(coarse_mod, "train_coarse", spy)
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
+    starts.coarse_start(tr)
+    fine = seen["env"]
+    assert fine.height == 64 and tr.model.env.height == 32
+    handed = tr.model.env.image().detach()
+    expect = resample_area(fine.image().detach(), 32, 64).clamp_min(1e-4)
+    assert torch.allclose(handed, expect, rtol=1e-4)
+    assert float(handed.mean()) > 0.6  # learned toward the true 1.0, not the 0.5 start
+    assert tr.decisions[-1].name == "coarse" and tr.decisions[-1].evidence["env_height"] == 64

@@ -232,6 +232,31 @@ def pixel_footprint(K: torch.Tensor, c2w: torch.Tensor) -> float:
     return float((dist / focal).median())
 
 
+ENV_TEXEL_PIXELS = 4.0
+"""Pixels of the photos across one texel of the coarse stage's env map (:func:`env_rows`)."""
+
+
+def env_rows(K: torch.Tensor, cap: int, floor: int) -> int:
+    """Rows of an equirectangular env map whose texel (π / rows radians) spans
+    :data:`ENV_TEXEL_PIXELS` pixels of the photos, between ``floor`` and ``cap``.
+
+    A finer map than the photos resolve lets the background absorb the object (on a 64² scene a
+    256-row map took the whole sphere: the coarse stage found no hull); a coarser one leaves
+    background detail to floaters of the density (docs/STAGE1.md, finding 19).
+
+    Args:
+        K: ``(N, 3, 3)`` intrinsics in pixels (one pixel ≈ 1 / focal radians at the centre).
+        cap, floor: the preset's upper bound and the main map's rows.
+
+    Returns:
+        ``clamp(round(π · focal / ENV_TEXEL_PIXELS), floor, cap)`` with focal the median of the
+        cameras' mean of fx and fy: 256² at 40° gives 276 (capped to 256), 64² gives 69.
+    """
+    focal = float((0.5 * (K[:, 0, 0] + K[:, 1, 1]).double()).median())
+    rows = int(round(math.pi * focal / ENV_TEXEL_PIXELS))
+    return max(floor, min(cap, rows))
+
+
 def max_useful_res(footprint: float, bound: float) -> int:
     """Finest grid resolution whose voxel ``2·bound/(res − 1)`` is not below ``footprint``."""
     return int(math.floor(2.0 * bound / footprint)) + 1

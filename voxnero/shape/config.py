@@ -96,6 +96,7 @@ class CoarseConfig:
         "rays": at_least(1, BIG_COUNT), "feat_dim": at_least(1, 256), "hidden": at_least(1, 1024),
         "alpha_init": Range(0.0, 1.0, lo_open=True, hi_open=True), "lr_grid": LEARNING_RATE,
         "lr_head": LEARNING_RATE, "tv": WEIGHT, "margin": Range(0.0, 64.0),
+        "env_height": at_least(0, 4096),
         "s_start": positive(1e9), "normal_smooth": WEIGHT, "sdf_res": at_least(4, 1024),
         "smooth": Range(0.0, 16.0), "close": at_least(0, 16),
         "update_smooth": Range(0.0, 16.0), "lr_sdf_factor": positive(1e3),
@@ -117,6 +118,15 @@ class CoarseConfig:
     lr_head: float = 1e-3
     tv: float = 0.0
     """Weight of the total variation of the raw density."""
+    env_height: int = 256
+    """Most rows of the env map the coarse stage fits (0: the main stage's map); the rows are
+    those whose texel spans 4 pixels of the photos (:func:`voxnero.shape.adaptive.env_rows`),
+    at least ``light.env_height``, at most this. The SDF stage then goes on with the map
+    area-averaged to ``light.env_height``. The photos show
+    the background at 0.16° per pixel (256², 40°); what the map cannot draw, the density draws
+    with floaters, among which thin parts are lost. Corpus `preview`, coarse start alone, rows
+    64 / 128 / 256: table_oak 16.8 / 4.3 / 0.86 px, gear 2.07 / 1.87 / 1.80, bunny 1.35 / 1.26 /
+    1.63, median 1.25 / 1.20 / 1.09 px (docs/STAGE1.md finding 19)."""
     race: bool = True
     """Race the coarse start against the sphere of ``grid.init_radius`` (complete runs, the
     better final fit kept, :func:`voxnero.shape.starts.race`): a mirror's density can be a

@@ -19,6 +19,8 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from voxnero.fields.lights import EnvLight
+from voxnero.render.mip import resample_area
 from voxnero.shape import adaptive, losses, schedules
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.renderer import background, render_rays
@@ -41,6 +43,17 @@ def has_race(cfg: ShapeConfig) -> bool:
 def coarse_done(tr: ShapeTrainer) -> bool:
     """Whether ``tr``'s SDF already has its start from the coarse stage (a resumed run)."""
     return any(d.name == "coarse" for d in tr.decisions)
+
+
+def coarse_env(env: EnvLight, height: int) -> EnvLight:
+    """The env map the coarse stage fits: ``env`` itself at its own height (``height`` 0 or
+    equal), else a new map of ``height`` rows started from it. The background seen in the photos
+    has the pixels' detail (0.16° per pixel at 256² and 40°); what a 64-row map (2.8° per texel)
+    cannot draw, the density explains with floaters in front of it, and thin parts of the
+    object (a table's legs) are lost among them (docs/STAGE1.md, finding 19)."""
+    if height in (0, env.height):
+        return env
+    return env.upsampled(height).to(env.log_radiance.device)
 
 
 def coarse_start(tr: ShapeTrainer) -> None:
@@ -75,16 +88,28 @@ def coarse_start(tr: ShapeTrainer) -> None:
             bar.set_postfix(loss=f"{loss:.4f}")
 
     m = tr.model
-    hist = train_coarse(model, m.env, lambda n: tr.pixel_batch(n, tr.gen),
+    # a known background colour (images with alpha) leaves the map to the lighting: no finer map;
+    # else as fine as the photos resolve, up to coarse.env_height
+    rows = 0
+    if c.env_height and m.sw.background != "alpha":
+        rows = adaptive.env_rows(tr.cams.K, c.env_height, m.env.height)
+    env = coarse_env(m.env, rows)
+    hist = train_coarse(model, env, lambda n: tr.pixel_batch(n, tr.gen),
                         lambda p, t: losses.color_loss(p, t, lc.charbonnier_eps, lc.color_space),
                         c.iters, c.rays, c.samples, c.lr_grid, c.lr_head, tr.cfg.optim.lr_env,
                         c.tv, tr.cfg.sampling.radius, tr.gen, progress,
                         # the env map (or the known colour of images with alpha), without the
                         # near field: with it the hull of dtu_scan97 fitted worse (held-out
                         # IoU 0.79 / 0.81 against 0.87 / 0.90, docs/BENCHMARKS.md session 10)
-                        background=lambda o, d: background(m, d))
+                        background=lambda o, d: (env.background(d)
+                                                 if m.sw.background != "alpha"
+                                                 else background(m, d)))
     if bar is not None:
         bar.close()
+    if env is not m.env:
+        with torch.no_grad():  # the SDF stage goes on with the coarse map, area-averaged
+            m.env.log_radiance.copy_(torch.log(resample_area(
+                env.image(), m.env.height, 2 * m.env.height).clamp_min(1e-4)))
     alpha = model.voxel_alpha().cpu().numpy()
     if c.smooth > 0:
         from scipy import ndimage
@@ -125,7 +150,7 @@ def coarse_start(tr: ShapeTrainer) -> None:
                  "final_loss": round(tail, 5), "seconds": round(seconds, 2),
                  "max_alpha": round(float(alpha.max()), 4),
                  "sdf_box": None if box is None else box.round(4).tolist(),
-                 "sdf_voxel": round(g.voxel, 6)}, 0))
+                 "sdf_voxel": round(g.voxel, 6), "env_height": env.height}, 0))
 
 
 def with_coarse_schedule(cfg: ShapeConfig) -> ShapeConfig:
