@@ -205,6 +205,38 @@ def test_mesh_topology_reads_the_largest_component(tmp_path):
     assert bench.mesh_topology(tmp_path / "m.ply") == (1, 2)
 
 
+def test_collect_finds_the_mesh_of_a_point_with_overrides(tmp_path):
+    """A point with overrides names its own run folder: the corpus table reads that run's mesh
+    (its genus), not the bare preset's folder."""
+    import csv
+
+    from voxnero.synth.writer import write_mesh
+
+    corpus, out = tmp_path / "corpus", tmp_path / "out"
+    (corpus / "ring").mkdir(parents=True)
+    (corpus / "ring" / "scene_info.json").write_text('{"pixel_size": 0.01, "genus": 1}')
+    point = "preview shape.coarse.race=false"
+    header = ("scene,scene_path,point,preset,overrides,stage,repeat,status,time_s,shape_s,"
+              "material_s,shape_train_s,material_train_s,peak_rss_mib,chamfer,normal_deg,psnr,"
+              "jobs,load1,started,host").split(",")
+    row = dict.fromkeys(header, "")
+    row.update(scene="ring", scene_path=str(corpus / "ring"), point=point, preset="preview",
+               overrides="shape.coarse.race=false", stage="shape", repeat="0", status="ok",
+               time_s="10", shape_s="10", chamfer="0.005", normal_deg="3.0")
+    out.mkdir()
+    with open(out / "tradeoff.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, header)
+        w.writeheader()
+        w.writerow(row)
+    torus = shapes.mesh_sdf(shapes.torus(0.5, 0.2), 48)
+    sdir = bench.run_dirs(out, "ring", point)[0]
+    sdir.mkdir(parents=True)
+    write_mesh(sdir / "mesh.ply", torus.vertices, torus.triangles, torus.normals)
+    (r,) = bench.collect(corpus, out)
+    assert r["genus"] == 1 and r["components"] == 1
+    assert r["chamfer_px"] == pytest.approx(0.5)
+
+
 @pytest.mark.slow
 def test_mitsuba_background_matches_the_env_map_convention():
     """The written convention (camera axes, env-map orientation) agrees with Mitsuba's."""

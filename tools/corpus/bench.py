@@ -77,15 +77,18 @@ def collect(corpus: Path, out: Path) -> list[dict]:
     """One row per (scene, preset) of ``out/tradeoff.csv``, with the corpus metrics added."""
     rows = []
     csv_rows = tradeoff.read_csv(out / "tradeoff.csv")
-    both = {(r["scene"], r["preset"]) for r in csv_rows
+    def point(r: dict) -> str:  # the preset with its overrides: what names the run folders
+        return r.get("point") or r["preset"]
+
+    both = {(r["scene"], point(r)) for r in csv_rows
             if r["stage"] == "both" and tradeoff.is_done(r)}
     for r in csv_rows:
-        if r["stage"] != "both" and (r["scene"], r["preset"]) in both:
+        if r["stage"] != "both" and (r["scene"], point(r)) in both:
             continue  # the same stage-1 run, measured with stage 2 too
         scene = Path(r["scene_path"]) if r.get("scene_path") else corpus / r["scene"]
         info = read_json(scene / "scene_info.json")
         px = float(info.get("pixel_size", "nan"))
-        sdir, mdir = run_dirs(out, r["scene"], r["preset"])
+        sdir, mdir = run_dirs(out, r["scene"], point(r))
         metrics = read_json(mdir / "eval" / "metrics.json")
         relight = [v.get("psnr", math.nan) for v in (metrics.get("relight") or {}).values()]
         genus, comps = (mesh_topology(sdir / "mesh.ply") if (sdir / "mesh.ply").is_file()
