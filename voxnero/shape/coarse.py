@@ -128,7 +128,8 @@ def train_coarse(model: CoarseModel, env: EnvLight, batch: Callable[[int], tuple
     per-step loss.
 
     Args:
-        env: the learnable env map (trained at ``lr_env``; its mip chain is prepared per step).
+        env: the learnable env map (trained at ``lr_env``). Only its finest level is read (the
+            background), so no mip chain is built: at 256 rows that was 85 % of the map's cost.
         batch: ``batch(n)`` → ray origins, directions ``(n, 3)`` and target linear RGB ``(n, 3)``.
         loss_fn: photometric loss of predicted and target linear RGB.
         iters, rays, samples: steps, rays per step, samples per ray.
@@ -145,10 +146,10 @@ def train_coarse(model: CoarseModel, env: EnvLight, batch: Callable[[int], tuple
                             dict(params=list(model.head.parameters()), lr=lr_head),
                             dict(params=[env.log_radiance], lr=lr_env)],
                            betas=(0.9, 0.99), eps=1e-15)
+    env.release()  # no stale mip chain: the background reads the live map
     hist = []
     for it in range(iters):
         o, d, target = batch(rays)
-        env.prepare()
         out = render_coarse(model, background, o, d, samples, radius, True, generator)
         loss = loss_fn(out["rgb"], target)
         if tv > 0:
@@ -156,7 +157,6 @@ def train_coarse(model: CoarseModel, env: EnvLight, batch: Callable[[int], tuple
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
-        env.release()
         hist.append(float(loss.detach()))
         if progress is not None:
             progress(it, hist[-1])

@@ -53,7 +53,7 @@ def coarse_env(env: EnvLight, height: int) -> EnvLight:
     object (a table's legs) are lost among them (docs/STAGE1.md, finding 19)."""
     if height in (0, env.height):
         return env
-    return env.upsampled(height).to(env.log_radiance.device)
+    return env.upsampled(height)
 
 
 def coarse_start(tr: ShapeTrainer) -> None:
@@ -101,9 +101,8 @@ def coarse_start(tr: ShapeTrainer) -> None:
                         # the env map (or the known colour of images with alpha), without the
                         # near field: with it the hull of dtu_scan97 fitted worse (held-out
                         # IoU 0.79 / 0.81 against 0.87 / 0.90, docs/BENCHMARKS.md session 10)
-                        background=lambda o, d: (env.background(d)
-                                                 if m.sw.background != "alpha"
-                                                 else background(m, d)))
+                        background=(lambda o, d: background(m, d)) if env is m.env
+                        else (lambda o, d: env.background(d)))
     if bar is not None:
         bar.close()
     if env is not m.env:
