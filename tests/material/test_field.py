@@ -2,10 +2,22 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tests.material.stage2_scene import sphere_geometry
-from voxnero.material.field import GridMaterial, VertexMaterial, activate, vertex_materials
+from voxnero.material.field import (
+    ROUGHNESS_MIN,
+    GridMaterial,
+    VertexMaterial,
+    activate,
+    vertex_materials,
+)
+from voxnero.render.brdf import brdf_eval
+from voxnero.render.microfacet import ALPHA_MIN
 
 
 def test_vertex_field_interpolates_and_initialises():
@@ -26,7 +38,7 @@ def test_vertex_field_interpolates_and_initialises():
         b = torch.zeros(1, 3)
         b[0, k] = 1
         v = geom.triangles[5, k]
-        assert torch.allclose(f(t, b)[2][0, 0], torch.sigmoid(f.raw[v, 4]), atol=1e-6)
+        assert torch.allclose(f(t, b)[2][0, 0], activate(f.raw[v])[2], atol=1e-6)
     assert float(f.smoothness().detach()) > 0
 
 
@@ -41,7 +53,8 @@ def test_grid_axis_order_matches_point_coordinates():
     g = torch.Generator().manual_seed(0)
     x = torch.rand(100, 3, generator=g) * 2 - 1
     a, m, r = f(None, None, x)
-    assert torch.allclose(torch.logit(r[:, 0]), x[:, 0], atol=1e-4)
+    r01 = (r[:, 0] - ROUGHNESS_MIN) / (1 - ROUGHNESS_MIN)
+    assert torch.allclose(torch.logit(r01), x[:, 0], atol=1e-4)
     assert torch.allclose(torch.logit(m[:, 0]), x[:, 2], atol=1e-4)
 
 
@@ -65,3 +78,25 @@ def test_activation_ranges_and_vertex_export():
         a, m, r = vertex_materials(f, geom)
         assert a.shape == (geom.n_vertices, 3) and m.shape == (geom.n_vertices, 1)
         assert torch.allclose(r, torch.full_like(r, 0.6), atol=1e-5)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-40.0, 40.0))
+def test_roughness_has_no_dead_zone_at_the_brdf_clamp(raw_r):
+    """Every raw roughness maps to r >= sqrt(ALPHA_MIN), where the BRDF's alpha clamp does not
+    bite, so a mirror-ward slide can always be undone: the BRDF off the mirror direction (10°
+    off the reflection) has a non-zero derivative w.r.t. the raw value. A plain sigmoid gave
+    r = 0.012 (duck) with an exactly zero derivative."""
+    raw = torch.tensor([0.0, 0.0, 0.0, -5.0, raw_r], dtype=torch.float64, requires_grad=True)
+    _, _, r = activate(raw)
+    assert float(r) >= ROUGHNESS_MIN * (1 - 1e-12)
+    assert float(r) ** 2 >= ALPHA_MIN * (1 - 1e-9)
+    n = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    v = torch.tensor([math.sin(0.5), 0.0, math.cos(0.5)], dtype=torch.float64)
+    off = 0.5 + math.radians(10.0)
+    l = torch.tensor([-math.sin(off), 0.0, math.cos(off)], dtype=torch.float64)
+    a, m, r = activate(raw)
+    f = brdf_eval(n, v, l, a, m, r).sum()
+    (g,) = torch.autograd.grad(f, raw)
+    if raw_r < 30:  # sigmoid's own slope underflows float64 beyond (r = 1: the rough end)
+        assert float(g[4]) != 0.0

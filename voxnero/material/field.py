@@ -13,7 +13,7 @@ Both are a **global base** (5 raw values shared by the whole surface) plus a spa
 uniform material converges in a few hundred steps, while each vertex / cell only sees the few
 pixels around it (measured on torus_ceramic: per-vertex values alone had moved metallic only from
 0.5 to 0.34 after 1000 steps). Raw values pass through a sigmoid: albedo in (0, 1)³, metallic in
-(0, 1), roughness r in (0, 1) (GGX alpha = r², see ``voxnero.render.brdf``).
+(0, 1), roughness r in (``ROUGHNESS_MIN``, 1) (GGX alpha = r², see ``voxnero.render.brdf``).
 """
 
 from __future__ import annotations
@@ -25,6 +25,14 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from voxnero.material.surface import Geometry
+from voxnero.render.microfacet import ALPHA_MIN
+
+ROUGHNESS_MIN: float = math.sqrt(ALPHA_MIN)
+"""Smallest roughness the field produces (0.0316, GGX alpha = ``ALPHA_MIN``): the BRDF clamps
+alpha there, so a roughness below it would render the same mirror with a zero gradient, and a
+parameter that slid under it (a dielectric's roughness does, early, while the env map is still
+coarse) could never come back: corpus duck 0.012 and mug 0.018 for 0.2 and 0.1, while the loss
+at the end of training is lower at 0.15-0.2 (docs/BENCHMARKS.md, session 14)."""
 
 
 def _logit(p: float) -> float:
@@ -32,14 +40,23 @@ def _logit(p: float) -> float:
     return math.log(p / (1 - p))
 
 
-def activate(raw: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Raw (..., 5) -> albedo (..., 3), metallic (..., 1), roughness (..., 1), all sigmoid."""
+def activated(raw: Tensor) -> Tensor:
+    """Raw (..., 5) -> (..., 5) activated values: sigmoid, the roughness channel mapped onto
+    [``ROUGHNESS_MIN``, 1] (so its gradient never vanishes at the BRDF's clamp)."""
     s = torch.sigmoid(raw)
+    return torch.cat([s[..., :4], ROUGHNESS_MIN + (1 - ROUGHNESS_MIN) * s[..., 4:5]], -1)
+
+
+def activate(raw: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Raw (..., 5) -> albedo (..., 3), metallic (..., 1) in (0, 1), roughness (..., 1) in
+    (``ROUGHNESS_MIN``, 1)."""
+    s = activated(raw)
     return s[..., 0:3], s[..., 3:4], s[..., 4:5]
 
 
 def _init_raw(albedo: float, metallic: float, roughness: float) -> list[float]:
-    return [_logit(albedo)] * 3 + [_logit(metallic), _logit(roughness)]
+    r = (max(roughness, ROUGHNESS_MIN) - ROUGHNESS_MIN) / (1 - ROUGHNESS_MIN)
+    return [_logit(albedo)] * 3 + [_logit(metallic), _logit(r)]
 
 
 class VertexMaterial(nn.Module):
@@ -87,7 +104,7 @@ class VertexMaterial(nn.Module):
         e = self.edges
         if sample and e.shape[0] > sample:
             e = e[torch.randint(0, e.shape[0], (sample,), generator=generator).to(e.device)]
-        s = torch.sigmoid(self.raw)
+        s = activated(self.raw)
         return ((s[e[:, 0]] - s[e[:, 1]]) ** 2).sum(-1).mean()
 
 
@@ -124,7 +141,7 @@ class GridMaterial(nn.Module):
 
     def smoothness(self, sample: int = 0, generator: torch.Generator | None = None) -> Tensor:
         """Mean squared difference of neighbouring activated cells along each axis."""
-        s = torch.sigmoid(self.grid + self.base.view(1, 5, 1, 1, 1))
+        s = activated((self.grid + self.base.view(1, 5, 1, 1, 1)).movedim(1, -1)).movedim(-1, 1)
         return sum(((s.narrow(d, 1, s.shape[d] - 1) - s.narrow(d, 0, s.shape[d] - 1)) ** 2)
                    .sum(1).mean() for d in (2, 3, 4))
 

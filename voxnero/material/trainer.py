@@ -368,6 +368,18 @@ class MaterialTrainer:
         return (f"the settings (lr_material={self.cfg.lr_material:g}, lr_env="
                 f"{self.cfg.lr_env:g}, loss weights) or an env map that overflows")
 
+    def material_medians(self, n: int = 4096) -> str:
+        """Medians of metallic and roughness over (up to ``n``) cached surface points, for the
+        log: how the material moves during training (e.g. a roughness sliding to its floor)."""
+        c = self.cache
+        k = min(n, c.x.shape[0])
+        if k == 0:
+            return "no surface points"
+        idx = torch.linspace(0, c.x.shape[0] - 1, k).long().to(self.device)
+        with torch.no_grad():
+            _, m, r = self.field(c.tri[idx], c.bary[idx], c.x[idx])
+        return f"metallic {float(m.median()):.3f}, roughness {float(r.median()):.3f} (medians)"
+
     # ------------------------------------------------------------------ loop
     def fit(self, ckpt: Path | None = None, progress: bool = True) -> dict[str, float]:
         """Train until ``cfg.iters`` steps (resuming from ``ckpt`` if it exists).
@@ -398,7 +410,8 @@ class MaterialTrainer:
                     if not progress:
                         self.log(f"[material] step {self.step}/{self.cfg.iters} object "
                                  f"PSNR(ema) {psnr:.2f} dB, background mse "
-                                 f"{last.get('background', 0):.2e}")
+                                 f"{last.get('background', 0):.2e}, "
+                                 + self.material_medians())
                 if ckpt is not None and self.cfg.checkpoint_every and \
                         self.step % self.cfg.checkpoint_every == 0:
                     self.save(ckpt)
