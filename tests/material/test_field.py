@@ -9,15 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.material.stage2_scene import sphere_geometry
-from voxnero.material.field import (
-    ROUGHNESS_MIN,
-    GridMaterial,
-    VertexMaterial,
-    activate,
-    vertex_materials,
-)
+from voxnero.material.field import GridMaterial, VertexMaterial, activate, vertex_materials
 from voxnero.render.brdf import brdf_eval
-from voxnero.render.microfacet import ALPHA_MIN
+from voxnero.render.microfacet import ALPHA_MIN, ROUGHNESS_MIN
 
 
 def test_vertex_field_interpolates_and_initialises():

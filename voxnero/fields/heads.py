@@ -12,6 +12,8 @@ import math
 import torch
 from torch import nn
 
+from voxnero.render.microfacet import raw_from_roughness, roughness_from_raw
+
 
 def mlp(n_in: int, hidden: int, n_out: int, layers: int = 2) -> nn.Sequential:
     """A plain ReLU MLP with ``layers`` hidden layers of width ``hidden``."""
@@ -49,9 +51,9 @@ class MaterialHead(nn.Module):
         with torch.no_grad():
             last = self.net[-1]
             last.weight.mul_(0.1)
-            r = (init_roughness - r_min) / (1.0 - r_min)
             last.bias.copy_(torch.tensor([_logit(init_albedo)] * 3
-                                         + [_logit(init_metallic), _logit(r)]))
+                                         + [_logit(init_metallic),
+                                            raw_from_roughness(init_roughness, r_min)]))
 
     def forward(self, feat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         out = self.net(feat)
@@ -59,5 +61,5 @@ class MaterialHead(nn.Module):
         metallic = torch.sigmoid(out[:, 3:4])
         if not self.use_metallic:
             metallic = torch.zeros_like(metallic)
-        rough = self.r_min + (1.0 - self.r_min) * torch.sigmoid(out[:, 4:5])
+        rough = roughness_from_raw(out[:, 4:5], self.r_min)
         return albedo, metallic, rough

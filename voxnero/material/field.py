@@ -13,7 +13,7 @@ Both are a **global base** (5 raw values shared by the whole surface) plus a spa
 uniform material converges in a few hundred steps, while each vertex / cell only sees the few
 pixels around it (measured on torus_ceramic: per-vertex values alone had moved metallic only from
 0.5 to 0.34 after 1000 steps). Raw values pass through a sigmoid: albedo in (0, 1)³, metallic in
-(0, 1), roughness r in (``ROUGHNESS_MIN``, 1) (GGX alpha = r², see ``voxnero.render.brdf``).
+(0, 1), roughness r in (``microfacet.ROUGHNESS_MIN``, 1) (GGX alpha = r², see ``voxnero.render.brdf``).
 """
 
 from __future__ import annotations
@@ -25,14 +25,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from voxnero.material.surface import Geometry
-from voxnero.render.microfacet import ALPHA_MIN
-
-ROUGHNESS_MIN: float = math.sqrt(ALPHA_MIN)
-"""Smallest roughness the field produces (0.0316, GGX alpha = ``ALPHA_MIN``): the BRDF clamps
-alpha there, so a roughness below it would render the same mirror with a zero gradient, and a
-parameter that slid under it (a dielectric's roughness does, early, while the env map is still
-coarse) could never come back: corpus duck 0.012 and mug 0.018 for 0.2 and 0.1, while the loss
-at the end of training is lower at 0.15-0.2 (docs/BENCHMARKS.md, session 14)."""
+from voxnero.render.microfacet import raw_from_roughness, roughness_from_raw
 
 
 def _logit(p: float) -> float:
@@ -42,21 +35,19 @@ def _logit(p: float) -> float:
 
 def activated(raw: Tensor) -> Tensor:
     """Raw (..., 5) -> (..., 5) activated values: sigmoid, the roughness channel mapped onto
-    [``ROUGHNESS_MIN``, 1] (so its gradient never vanishes at the BRDF's clamp)."""
-    s = torch.sigmoid(raw)
-    return torch.cat([s[..., :4], ROUGHNESS_MIN + (1 - ROUGHNESS_MIN) * s[..., 4:5]], -1)
+    [``microfacet.ROUGHNESS_MIN``, 1] (so its gradient never vanishes at the BRDF's clamp)."""
+    return torch.cat([torch.sigmoid(raw[..., :4]), roughness_from_raw(raw[..., 4:5])], -1)
 
 
 def activate(raw: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Raw (..., 5) -> albedo (..., 3), metallic (..., 1) in (0, 1), roughness (..., 1) in
-    (``ROUGHNESS_MIN``, 1)."""
+    (``microfacet.ROUGHNESS_MIN``, 1)."""
     s = activated(raw)
     return s[..., 0:3], s[..., 3:4], s[..., 4:5]
 
 
 def _init_raw(albedo: float, metallic: float, roughness: float) -> list[float]:
-    r = (max(roughness, ROUGHNESS_MIN) - ROUGHNESS_MIN) / (1 - ROUGHNESS_MIN)
-    return [_logit(albedo)] * 3 + [_logit(metallic), _logit(r)]
+    return [_logit(albedo)] * 3 + [_logit(metallic), raw_from_roughness(roughness)]
 
 
 class VertexMaterial(nn.Module):

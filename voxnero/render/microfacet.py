@@ -22,6 +22,13 @@ from torch import Tensor
 #: Perceptual roughness below sqrt(ALPHA_MIN) = 0.0316 maps to ALPHA_MIN (zero gradient there).
 ALPHA_MIN: float = 1e-3
 
+#: Smallest perceptual roughness the clamp leaves alone: sqrt(ALPHA_MIN) = 0.0316. A learnable
+#: roughness kept at or above it (:func:`roughness_from_raw`) never enters the clamped range,
+#: where every value renders the same mirror with a zero gradient and a parameter that slid
+#: there could never come back (stage 2's dielectrics did: docs/STAGE2.md, "Roughness near a
+#: mirror").
+ROUGHNESS_MIN: float = math.sqrt(ALPHA_MIN)
+
 #: Normal-incidence reflectance of the dielectric part (index of refraction 1.5).
 DIELECTRIC_F0: float = 0.04
 
@@ -58,6 +65,28 @@ def roughness_to_alpha(r: Tensor | float) -> Tensor:
     """
     r = torch.as_tensor(r)
     return (r.clamp(0.0, 1.0) ** 2).clamp_min(ALPHA_MIN)
+
+
+def roughness_from_raw(raw: Tensor, r_min: float = ROUGHNESS_MIN) -> Tensor:
+    """Perceptual roughness of a learnable raw value: ``r_min + (1 - r_min) sigmoid(raw)``.
+
+    Args:
+        raw: any shape, unbounded.
+        r_min: the smallest roughness (at ``ROUGHNESS_MIN`` or above, the gradient never
+            vanishes at the alpha clamp).
+
+    Returns:
+        roughness in (r_min, 1), same shape.
+    """
+    return r_min + (1.0 - r_min) * torch.sigmoid(raw)
+
+
+def raw_from_roughness(r: float, r_min: float = ROUGHNESS_MIN) -> float:
+    """Inverse of :func:`roughness_from_raw` (``r`` taken into [r_min, 1], the logit's argument
+    into [1e-4, 1 - 1e-4] so that it stays finite)."""
+    p = (min(max(r, r_min), 1.0) - r_min) / (1.0 - r_min)
+    p = min(max(p, 1e-4), 1 - 1e-4)
+    return math.log(p / (1 - p))
 
 
 def _alpha(alpha: Tensor | float) -> Tensor:
