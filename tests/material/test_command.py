@@ -103,3 +103,37 @@ def test_reconstruct_splits_overrides_by_stage():
                                                                        ["material.iters=4"])
     with pytest.raises(ConfigError):
         split_overrides(["iters=3"])
+
+
+def test_material_divides_the_photos_by_stage_one_gains(tmp_path, capsys):
+    """Photo 0 taken at half the exposure: with stage 1's ``exposure.json`` beside the mesh the
+    command divides it out (and says so), and the env map learned where only photo 0 sees the
+    background is the true one; without the file it is about half as bright there."""
+    from voxnero.fields.exposure import write_gains
+    from voxnero.io.color import srgb_to_linear
+
+    scene = tmp_path / "scene"
+    env, cams, geom = _write_scene(scene)
+    p = scene / "train" / "r_0.png"
+    lin = srgb_to_linear(torch.from_numpy(np.asarray(Image.open(p)) / 255.0).float())
+    dark = np.rint(np.asarray(linear_to_srgb(0.5 * lin)) * 255).astype(np.uint8)
+    Image.fromarray(dark).save(p)
+    over = ["iters=120", "batch=16", "texture_size=64", "eval_views=0", "render.spp_cos=2",
+            "render.spp_ggx=2", "render.spp_env=2", "light.env_height=[16]", "lr_env=0.1",
+            "threads=1", "bg_batch=2048"]
+    dirs = build_cache(geom, torch.zeros(1, 32, 32, 3), cams[[0]], max_pixels=0).bg_dirs
+    ratio = {}
+    for name in ("without", "with"):
+        run = tmp_path / name
+        run.mkdir()
+        (run / "mesh.ply").write_bytes((scene / "mesh.ply").read_bytes())
+        if name == "with":
+            write_gains(run / "exposure.json", [f"r_{i}" for i in range(4)],
+                        torch.tensor([[0.5] * 3] + [[1.0] * 3] * 3))
+        assert main(["material", "--scene", str(scene), "--out", str(run / "out"),
+                     "--no-progress", str(run / "mesh.ply"), *over]) == 0
+        back = torch.from_numpy(read_envmap(run / "out" / "envmap.exr"))
+        ratio[name] = float((envmap_lookup(back, dirs).mean(-1)
+                             / envmap_lookup(env, dirs).mean(-1)).median())
+    assert "divided by stage 1's per-photo gains" in capsys.readouterr().out
+    assert abs(ratio["with"] - 1.0) < 0.1 and ratio["without"] < 0.8, ratio

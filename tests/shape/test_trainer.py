@@ -344,6 +344,9 @@ def test_coarse_start_races_the_sphere_and_keeps_the_better_fit(scene, tmp_path)
     kept = max(fits, key=fits.get)
     assert dec["value"] == kept
     assert (tmp_path / "starts" / "coarse").is_dir() and (tmp_path / "starts" / "r0.7").is_dir()
+    # the sphere start has no coarse stage: it takes the coarse start's exposure measurement
+    r07 = json.loads((tmp_path / "starts" / "r0.7" / "decisions.json").read_text())["exposure"]
+    assert r07["reason"].startswith("the coarse start's measurement") and r07["value"] is False
     # the coarse child applies the coarse schedule once: SDF lr = lr_sdf × coarse.lr_sdf_factor,
     # scaled from the preset's first voxel to the fitted grid's (not the factor squared)
     ck = torch.load(tmp_path / "starts" / "coarse" / "checkpoint.pt", weights_only=False)
@@ -384,3 +387,75 @@ def test_coarse_stage_fits_a_finer_env_map_and_hands_on_its_area_average(scene, 
     assert torch.allclose(handed, expect, rtol=1e-4)
     assert float(handed.mean()) > 0.6  # learned toward the true 1.0, not the 0.5 start
     assert tr.decisions[-1].name == "coarse" and tr.decisions[-1].evidence["env_height"] == 64
+
+
+def _exposed(scene, log_gains: torch.Tensor):
+    """``scene`` with train photo i taken at gains ``exp(log_gains[i])`` per channel (clipped
+    at 1 like a camera)."""
+    from dataclasses import replace
+
+    sp = scene.split("train")
+    imgs = (torch.as_tensor(sp.images) * torch.exp(log_gains)[:, None, None, :]).clamp(max=1.0)
+    return replace(scene, splits={**scene.splits, "train": replace(sp, images=imgs)})
+
+
+def test_exposure_auto_stays_off_on_photos_taken_at_one_exposure(scene, tmp_path):
+    """The path-traced scene (one exposure): "auto" measures almost no spread after the coarse
+    stage, records it, and the gains are never trained."""
+    torch.manual_seed(0)
+    cfg = _coarse_cfg(150, iters=10)
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
+    tr.run()
+    dec = json.loads((tmp_path / "decisions.json").read_text())["exposure"]
+    assert dec["value"] is False and dec["setting"] == "auto"
+    assert dec["evidence"]["spread"] < 0.3 * cfg.light.exposure_min_spread
+    assert float(tr.model.gains.log_gain.detach().abs().max()) == 0.0
+
+
+def test_exposure_decision_measures_and_starts_the_gains(scene, tmp_path):
+    """Against a model that renders the photos' consensus, photos taken at per-photo gains
+    (σ = 0.25 in log) are measured within 0.02 of the truth, the decision is on and the
+    trainer's gains start there with their learning rate; the same ratios on the object's
+    pixels alone (a misfit of the object) spread as much but are refused."""
+    from voxnero.shape import exposure
+
+    n = scene.split("train").n
+    true = 0.25 * torch.randn(n, 3, generator=torch.Generator().manual_seed(1))
+    want = true - true.mean(0, keepdim=True)
+    tr = ShapeTrainer(_coarse_cfg(1), scene, tmp_path, progress=False, log=lambda s: None)
+    cam = torch.arange(n).repeat_interleave(500)
+    pred = 0.05 + 0.5 * torch.rand(cam.numel(), 3, generator=torch.Generator().manual_seed(2))
+    half = torch.arange(cam.numel()) % 2 == 0  # object and background pixels alike
+    assert exposure.decide(tr, pred, pred * torch.exp(true)[cam], cam, half) is True
+    dec = next(d for d in tr.decisions if d.name == "exposure")
+    assert dec.value is True and dec.evidence["spread"] > 0.15
+    assert torch.allclose(torch.log(tr.model.gains.gains().detach()), want, atol=0.02)
+    group = next(g for g in tr.opt.param_groups if g.get("name") == "gains")
+    assert group["lr"] == tr.cfg.light.exposure_lr and tr.sw.exposure
+    # the same ratios on the object only (the background as rendered): a misfit, not exposure
+    tr2 = ShapeTrainer(_coarse_cfg(1), scene, tmp_path / "b", progress=False, log=lambda s: None)
+    photo = torch.where(half[:, None], pred * torch.exp(true)[cam], pred)
+    assert exposure.decide(tr2, pred, photo, cam, half) is False
+    dec = next(d for d in tr2.decisions if d.name == "exposure")
+    assert dec.evidence["spread"] > 0.05 and dec.evidence["object_background_agreement"] < 0.3
+    assert not tr2.sw.exposure
+
+
+def test_exposure_on_learns_per_photo_gains(scene, tmp_path):
+    """Photos at per-photo gains with ``light.exposure=on`` (gains from 1): after 100 SDF steps
+    the learned gains have moved most of the way to the truth, and they are checkpointed."""
+    n = scene.split("train").n
+    # darker only: the scene's white background would clip above 1 and say "at least"
+    true = -0.3 * torch.rand(n, 3, generator=torch.Generator().manual_seed(1))
+    want = true - true.mean(0, keepdim=True)
+    torch.manual_seed(0)
+    cfg = _cfg(100)
+    cfg.light.exposure, cfg.light.exposure_lr = "on", 3e-2
+    tr = ShapeTrainer(cfg, _exposed(scene, true), tmp_path, progress=False, log=lambda s: None)
+    tr.run()
+    learned = torch.log(tr.model.gains.gains().detach())
+    err0 = float(want.abs().median())
+    assert float((learned - want).abs().median()) < 0.4 * err0, (learned - want).abs().median()
+    ck = torch.load(tmp_path / CKPT, weights_only=False)
+    assert ck["switches"]["exposure"] is True
+    assert torch.equal(ck["model"]["gains.log_gain"], tr.model.gains.log_gain.detach())

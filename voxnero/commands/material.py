@@ -120,6 +120,15 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
     t0 = time.perf_counter()
     scene = load_scene(scene_path, splits=("train",))
     train = scene.split("train")
+    gains_path = mesh_path.parent / "exposure.json"
+    if gains_path.is_file():  # stage 1 measured the photos' exposures: undo them
+        from voxnero.fields.exposure import read_gains
+
+        gains = read_gains(gains_path, train.names)
+        train.images = torch.as_tensor(train.images) / gains[:, None, None, :]
+        lum = gains.mean(-1)
+        print(f"[material] photos divided by stage 1's per-photo gains ({gains_path}: "
+              f"{float(lum.min()):.2f}-{float(lum.max()):.2f}x)", flush=True)
     mesh = load_mesh(mesh_path, scene.norm)
     geom = Geometry.from_legacy(mesh)
     gen = torch.Generator().manual_seed(cfg.seed)

@@ -13,7 +13,8 @@ Both are a **global base** (5 raw values shared by the whole surface) plus a spa
 uniform material converges in a few hundred steps, while each vertex / cell only sees the few
 pixels around it (measured on torus_ceramic: per-vertex values alone had moved metallic only from
 0.5 to 0.34 after 1000 steps). Raw values pass through a sigmoid: albedo in (0, 1)³, metallic in
-(0, 1), roughness r in (``microfacet.ROUGHNESS_MIN``, 1) (GGX alpha = r², see ``voxnero.render.brdf``).
+(0, 1), roughness r in (``microfacet.ROUGHNESS_MIN``, 1) (GGX alpha = r², see
+``voxnero.render.brdf``).
 """
 
 from __future__ import annotations

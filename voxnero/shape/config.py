@@ -219,7 +219,9 @@ class LightConfig:
         "hidden": at_least(1, 4096), "init_roughness": positive(1.0),
         "init_roughness_candidates": positive(1.0), "near_res": at_least(2, 512),
         "near_samples": at_least(1, 1024), "near_far_ratio": Range(1.0, 1e6, lo_open=True),
-        "near_lr": LEARNING_RATE}
+        "near_lr": LEARNING_RATE, "exposure_min_spread": Range(0.0, 10.0),
+        "exposure_min_agreement": Range(-1.0, 1.0),
+        "exposure_pixels": at_least(16, BIG_COUNT), "exposure_lr": LEARNING_RATE}
     """``max_log_radiance`` <= 80: exp(80) ~ 5.5e34 still fits a float32."""
 
     env_height: int = 64
@@ -269,6 +271,27 @@ class LightConfig:
     """Last near-background sample depth over the first; beyond, the env map."""
     near_lr: float = 3e-2
     """Adam learning rate of the near-background grid."""
+    exposure: Switch = "auto"
+    """A gain per training photo and colour channel (exposure and white balance,
+    :mod:`voxnero.fields.exposure`). "auto": measured after the coarse stage, from how far each
+    photo's well-exposed pixels sit from the coarse model's renders (one median ratio per photo
+    and channel); on iff the spread over the photos reaches ``exposure_min_spread``, the gains
+    then start from the measured ratios (:mod:`voxnero.shape.exposure`). Without a coarse stage
+    "auto" is off (a sphere start of a race takes the coarse start's decision)."""
+    exposure_min_spread: float = 0.05
+    """Standard deviation over the photos of the measured log gain above which "auto" turns the
+    gains on (0.05: ±5 % from photo to photo)."""
+    exposure_min_agreement: float = 0.3
+    """Correlation over the photos between the gains measured on the object's pixels and on the
+    background's, at or above which "auto" turns the gains on (an exposure scales a whole photo;
+    a misfit of the object's reflections does not reach the background). Measured after the
+    preview's coarse stage: dtu_scan97 0.47 (spread 0.112: on); the chrome knot -0.04 (spread
+    0.085), bowl_silver 0.48 (spread 0.039), frame_red -0.19 (0.039): off (docs/STAGE1.md,
+    finding 20)."""
+    exposure_pixels: int = 1024
+    """Pixels per photo rendered for the exposure measurement."""
+    exposure_lr: float = 1e-2
+    """Adam learning rate of the per-photo log gains."""
     hidden: int = 32
     init_roughness: float = 0.4
     """Perceptual roughness the material head outputs before training (everywhere). A rough

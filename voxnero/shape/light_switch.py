@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 
 from voxnero.fields.lights import IndirectNet, OcclusionNet
-from voxnero.shape import adaptive, schedules
+from voxnero.shape import adaptive, exposure, schedules
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.occlusion import OcclusionTargets, trim_mesh
 from voxnero.shape.renderer import ShapeModel, Switches
@@ -44,6 +44,8 @@ def resolve_switches(cfg: ShapeConfig, scene: Any,
       self-occlusion of the carved surface (:func:`decide_occlusion`): dropped on a convex
       surface.
     * metallic: "auto" means on (a dielectric is metallic = 0 within the model).
+    * exposure: "on" / "off" as forced; "auto" is decided after the coarse stage
+      (:mod:`voxnero.shape.exposure`).
 
     Args:
         cfg: stage-1 config.
@@ -67,8 +69,11 @@ def resolve_switches(cfg: ShapeConfig, scene: Any,
         decisions.append(adaptive.Decision(
             "indirect", ind, lc.indirect,
             "follows occlusion" if adaptive.is_on(lc.indirect) else "forced off"))
+    expo, dec_expo = exposure.before_training(lc.exposure, cfg.coarse.iters > 0)
+    if decisions is not None:
+        decisions.append(dec_expo)
     return Switches(indirect=ind, occlusion=occ, metallic=adaptive.is_on(lc.metallic),
-                    background=bg, bg_color=color)
+                    background=bg, bg_color=color, exposure=expo)
 
 
 def enable_nets(model: ShapeModel, sw: Switches, opt: torch.optim.Optimizer, cfg: ShapeConfig,
@@ -123,7 +128,7 @@ def view_rays(tr: ShapeTrainer, n: int) -> tuple[torch.Tensor, torch.Tensor]:
     """``n`` random training-camera rays ``(n, 3)`` origins and unit directions (unit frame),
     drawn with their own RNG."""
     gen = torch.Generator(device=tr.device).manual_seed(tr.cfg.seed + VIEW_SEED_OFFSET)
-    o, d, _ = tr.pixel_batch(n, gen)
+    o, d, _, _ = tr.pixel_batch(n, gen)
     return o, d
 
 

@@ -24,6 +24,7 @@ import torch
 from torch import nn
 
 from voxnero.fields.background import NearBackground
+from voxnero.fields.exposure import ImageGains
 from voxnero.fields.grid import DenseGrid, SDFGrid
 from voxnero.fields.heads import MaterialHead
 from voxnero.fields.lights import EnvLight, IndirectNet, OcclusionNet
@@ -44,6 +45,8 @@ class Switches:
     background: str = "distant"
     """"distant", "alpha" or "near"."""
     bg_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    exposure: bool = False
+    """Per-photo gains on the renders of training pixels (:mod:`voxnero.fields.exposure`)."""
 
 
 class ShapeModel(nn.Module):
@@ -53,9 +56,12 @@ class ShapeModel(nn.Module):
         cfg: the stage-1 config.
         sw: resolved switches.
         res: SDF grid resolution to build (defaults to the first of ``cfg.grid.res``).
+        n_images: training photos; with ``light.exposure`` not "off" the model holds their
+            gains (``gains``, identity until switched on: "auto" decides after the coarse stage).
     """
 
-    def __init__(self, cfg: ShapeConfig, sw: Switches, res: int | None = None):
+    def __init__(self, cfg: ShapeConfig, sw: Switches, res: int | None = None,
+                 n_images: int = 0):
         super().__init__()
         g, lc = cfg.grid, cfg.light
         self.sw = sw
@@ -69,6 +75,8 @@ class ShapeModel(nn.Module):
         self.occlusion = OcclusionNet(g.feat_dim, lc.hidden) if sw.occlusion else None
         self.near_bg = (NearBackground(lc.near_res, lc.near_samples, lc.near_far_ratio)
                         if sw.background == "near" else None)
+        self.gains = (ImageGains(n_images) if n_images > 0 and cfg.light.exposure != "off"
+                      else None)
 
     def param_groups(self, cfg: ShapeConfig) -> list[dict]:
         """Adam parameter groups with their learning rates (named for schedules)."""
@@ -79,6 +87,9 @@ class ShapeModel(nn.Module):
                   dict(name="env", params=[self.env.log_radiance], lr=o.lr_env)]
         if self.near_bg is not None:
             groups.append(dict(name="near_bg", params=[self.near_bg.grid], lr=cfg.light.near_lr))
+        if self.gains is not None:  # frozen (lr 0) until the switch is on
+            groups.append(dict(name="gains", params=[self.gains.log_gain],
+                               lr=cfg.light.exposure_lr if self.sw.exposure else 0.0))
         light = []
         for m in (self.indirect, self.occlusion):
             if m is not None:
@@ -86,6 +97,15 @@ class ShapeModel(nn.Module):
         if light:
             groups.append(dict(name="light", params=light, lr=o.lr_light))
         return groups
+
+
+def as_photographed(model: ShapeModel, rgb: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+    """Rendered linear RGB ``(R, 3)`` of pixels of training photos ``image`` (``(R,)`` long) as
+    those photos recorded it: times the photo's gains when the exposure switch is on, else as
+    is (held-out views always render as is, at the photos' mean exposure)."""
+    if model.sw.exposure and model.gains is not None:
+        return model.gains(rgb, image)
+    return rgb
 
 
 def background(model: ShapeModel, dirs: torch.Tensor, origins: torch.Tensor | None = None,

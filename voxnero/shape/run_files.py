@@ -103,6 +103,7 @@ def load_checkpoint(tr: ShapeTrainer) -> bool:
     elif not sw.get("occlusion", True) and tr.model.occlusion is not None:  # dropped
         light_switch.disable_nets(tr.model, tr.sw, tr.opt, remove_from_optimizer=False)
         tr.occ_targets = None
+    tr.sw.exposure = bool(sw.get("exposure", False))  # "auto" decides after the coarse stage
     if "decisions" in ck:
         tr.decisions = [adaptive.Decision(**d) for d in ck["decisions"]]
         tr.occ_pending = bool(ck.get("occ_pending", False))
@@ -229,8 +230,13 @@ def write_preview(tr: ShapeTrainer) -> None:
 
 
 # ------------------------------------------------------------------------------ outputs
+EXPOSURE = "exposure.json"
+"""Per-photo gains of a run whose exposure switch is on (stage 2 divides the photos by them)."""
+
+
 def write_outputs(tr: ShapeTrainer) -> Path:
-    """Final mesh (input frame), SDF grid, env map and summary JSON into ``tr.outputs``;
+    """Final mesh (input frame), SDF grid, env map, summary JSON and, with the exposure switch
+    on, the per-photo gains (``exposure.json``) into ``tr.outputs``;
     ``decisions.json`` into the run folder. Returns the mesh path."""
     from voxnero.io.exr import write_exr
     from voxnero.mesh.io import save_mesh
@@ -243,6 +249,11 @@ def write_outputs(tr: ShapeTrainer) -> Path:
     np.savez_compressed(out / "sdf.npz", sdf=g.grid.data[0].cpu().numpy(),
                         bounds=g.bounds.cpu().numpy())
     write_exr(out / "envmap.exr", tr.model.env.image().detach().cpu().numpy())
+    if tr.sw.exposure and tr.model.gains is not None:
+        from voxnero.fields.exposure import write_gains
+
+        write_gains(out / EXPOSURE, tr.scene.split("train").names,
+                    tr.model.gains.gains().detach().cpu())
     write_decisions(tr)
     summary = {"switches": asdict(tr.sw), "steps": tr.step,
                "train_time_s": tr.train_time, "grid_res": g.res,

@@ -21,9 +21,9 @@ import torch
 
 from voxnero.fields.lights import EnvLight
 from voxnero.render.mip import resample_area
-from voxnero.shape import adaptive, losses, schedules
+from voxnero.shape import adaptive, exposure, losses, schedules
 from voxnero.shape.config import ShapeConfig
-from voxnero.shape.renderer import background, render_rays
+from voxnero.shape.renderer import as_photographed, background, render_rays
 
 if TYPE_CHECKING:
     from voxnero.shape.trainer import ShapeTrainer
@@ -94,17 +94,20 @@ def coarse_start(tr: ShapeTrainer) -> None:
     if c.env_height and m.sw.background != "alpha":
         rows = adaptive.env_rows(tr.cams.K, c.env_height, m.env.height)
     env = coarse_env(m.env, rows)
-    hist = train_coarse(model, env, lambda n: tr.pixel_batch(n, tr.gen),
+    # the env map (or the known colour of images with alpha), without the near field: with it
+    # the hull of dtu_scan97 fitted worse (held-out IoU 0.79 / 0.81 against 0.87 / 0.90,
+    # docs/BENCHMARKS.md session 10)
+    def bg(o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+        return background(m, d) if env is m.env else env.background(d)
+
+    hist = train_coarse(model, env, lambda n: tr.pixel_batch(n, tr.gen)[:3],
                         lambda p, t: losses.color_loss(p, t, lc.charbonnier_eps, lc.color_space),
                         c.iters, c.rays, c.samples, c.lr_grid, c.lr_head, tr.cfg.optim.lr_env,
-                        c.tv, tr.cfg.sampling.radius, tr.gen, progress,
-                        # the env map (or the known colour of images with alpha), without the
-                        # near field: with it the hull of dtu_scan97 fitted worse (held-out
-                        # IoU 0.79 / 0.81 against 0.87 / 0.90, docs/BENCHMARKS.md session 10)
-                        background=(lambda o, d: background(m, d)) if env is m.env
-                        else (lambda o, d: env.background(d)))
+                        c.tv, tr.cfg.sampling.radius, tr.gen, progress, background=bg)
     if bar is not None:
         bar.close()
+    if tr.cfg.light.exposure == "auto" and not tr.sw.exposure:
+        exposure.decide_after_coarse(tr, model, bg)
     if env is not m.env:
         with torch.no_grad():  # the SDF stage goes on with the coarse map, area-averaged
             m.env.log_radiance.copy_(torch.log(resample_area(
@@ -207,11 +210,12 @@ def fit_psnr(tr: ShapeTrainer, chunk: int = 8192) -> float:
     """PSNR (dB, linear RGB) of a trainer's current model on ``fit_rays`` training pixels drawn
     with a fixed seed (the same pixels for every start of a race), rendered as at test time."""
     gen = torch.Generator(device=tr.device).manual_seed(tr.cfg.seed + FIT_SEED_OFFSET)
-    o, d, target = tr.pixel_batch(tr.cfg.fit_rays, gen)
+    o, d, target, cam = tr.pixel_batch(tr.cfg.fit_rays, gen)
     s = schedules.sharpness(tr.cfg, tr.step)
     tr.model.env.prepare()
     rgb = torch.cat([render_rays(tr.model, o[i:i + chunk], d[i:i + chunk], s, tr.cfg,
                                  train=False)["rgb"] for i in range(0, o.shape[0], chunk)])
+    rgb = as_photographed(tr.model, rgb, cam)
     tr.model.env.release()
     return losses.psnr(rgb, target)
 
@@ -241,6 +245,10 @@ def race(tr: ShapeTrainer) -> Path:
         radii = [None] + (radii if co.race else [])
     roughs = [r for r in lc.init_roughness_candidates if r != lc.init_roughness]
     runs: list[tuple[str, float, ShapeTrainer | None]] = []  # (folder name, fit, trainer)
+    measured: list[adaptive.Decision] = []  # the coarse start's "auto" exposure decision
+
+    def exposure_decision() -> adaptive.Decision | None:
+        return measured[0] if measured and tr.cfg_in.light.exposure == "auto" else None
     seconds, steps = 0.0, 0
 
     def start(radius: float | None, rough: float | None, k: int, n: int) -> float:
@@ -257,10 +265,23 @@ def race(tr: ShapeTrainer) -> Path:
         else:
             sub = replace(sub, grid=replace(sub.grid, init_radius=radius),
                           coarse=replace(co, iters=0))
+        taken = exposure_decision()
+        if radius is not None and taken is not None:
+            # a sphere start has no coarse stage to measure the photos on: it takes the
+            # coarse start's decision
+            sub = replace(sub, light=replace(sub.light,
+                                             exposure="on" if taken.value else "off"))
         folder = tr.out / "starts" / name
         tr.log(f"[shape] start {name} ({k} of {n}): a complete run in {folder}")
         child = type(tr)(sub, tr.scene, folder, tr.device, tr.progress, tr.log)
+        if radius is not None and taken is not None:
+            child.decisions = [x for x in child.decisions if x.name != "exposure"] + [
+                adaptive.Decision("exposure", taken.value, lc.exposure,
+                                  "the coarse start's measurement: " + taken.reason,
+                                  taken.evidence, 0)]
         child.run()
+        if radius is None and not measured:
+            measured.extend(x for x in child.decisions if x.name == "exposure")
         fit = fit_psnr(child)
         seconds += child.train_time
         steps += child.step
@@ -312,7 +333,9 @@ def race(tr: ShapeTrainer) -> Path:
     name, _, win = runs[best_k]
     assert win is not None
     tr.outputs.mkdir(parents=True, exist_ok=True)
-    for fname in ("mesh.ply", "sdf.npz", "envmap.exr", "shape.json"):
+    for fname in ("mesh.ply", "sdf.npz", "envmap.exr", "shape.json", "exposure.json"):
+        if fname == "exposure.json" and not (win.out / fname).is_file():
+            continue  # written only with the exposure switch on
         shutil.copyfile(win.out / fname, tr.outputs / fname)
     with open(tr.out / "log.jsonl", "w") as fh:
         for other, _, _ in runs:

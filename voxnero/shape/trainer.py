@@ -31,7 +31,7 @@ from voxnero.shape import adaptive, light_switch, losses, run_files, schedules, 
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.objective import objective
 from voxnero.shape.occlusion import OcclusionTargets
-from voxnero.shape.renderer import ShapeModel, render_rays
+from voxnero.shape.renderer import ShapeModel, as_photographed, render_rays
 from voxnero.shape.run_files import CKPT, STATE  # noqa: F401 - re-exported for callers
 
 
@@ -81,7 +81,7 @@ class ShapeTrainer:
         self.fingerprint = fingerprint.make(cfg, scene=fingerprint.scene_digest(scene))
         """Scene and model-shaping settings, saved in the checkpoint and checked on resume."""
         self.guard = NonFiniteGuard("shape", self._nonfinite_cause, run_files.NONFINITE_FIX)
-        self.model = ShapeModel(cfg, self.sw).to(self.device)
+        self.model = ShapeModel(cfg, self.sw, n_images=self.n_img).to(self.device)
         self.coarse_voxel = self.model.sdf.voxel
         """Voxel of the first grid: smoothing lengths are fixed in space across resolutions."""
         self.opt = self.make_optimizer()
@@ -132,15 +132,16 @@ class ShapeTrainer:
 
     # ------------------------------------------------------------------ one step
     def pixel_batch(self, n: int, gen: torch.Generator
-                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """``n`` random training pixels drawn with ``gen``: ray origins and directions
-        ``(n, 3)`` (unit frame) and the photos' linear RGB ``(n, 3)`` there."""
+        ``(n, 3)`` (unit frame), the photos' linear RGB ``(n, 3)`` there and the photo of each
+        ``(n,)`` (long)."""
         cam, pix = random_pixels(n, self.n_img, self.h, self.w, generator=gen,
                                  device=self.device)
         pi = pix.long()
         target = self.images[(cam * self.h + pi[:, 1]) * self.w + pi[:, 0]]
         o, d = pixel_rays(self.cams, cam, pix)
-        return o, d, target
+        return o, d, target, cam
 
     def train_step(self) -> dict[str, float]:
         """One optimisation step; returns scalars for logging."""
@@ -152,9 +153,10 @@ class ShapeTrainer:
         for g in self.opt.param_groups:
             g["lr"] = g.setdefault("base_lr", g["lr"]) * lrf
         light_switch.maybe_decide_occlusion(self)
-        o, d, target = self.pixel_batch(cfg.sampling.rays, self.gen)
+        o, d, target, cam = self.pixel_batch(cfg.sampling.rays, self.gen)
         m.env.prepare()
         out = render_rays(m, o, d, s, cfg, train=True, generator=self.gen)
+        out["rgb"] = as_photographed(m, out["rgb"], cam)
         loss, t = objective(self, out, target)
         self.opt.zero_grad(set_to_none=True)
         if not torch.isfinite(loss):
