@@ -60,8 +60,11 @@ class GridConfig:
     look on early training PSNR was removed: early PSNR favours a start inside a mirror that
     later loses, docs/STAGE1.md, finding 13.)"""
     init_margin: float = 0.0
-    """dB by which another start's fit must beat ``init_radius``'s to replace it. 0: the final
-    fits the race compares are deterministic and starts that end alike fit alike."""
+    """dB by which another start's fit must beat the first start's (the coarse stage's start
+    when ``coarse.iters`` > 0, else ``init_radius``'s) to replace it. 0: the final fits the race
+    compares are deterministic and starts that end alike fit alike. The presets ask 0.5 dB of a
+    sphere against the carved start: on dtu_scan97 the sphere won by 0.4 dB with a rounder
+    surface (docs/STAGE1.md, finding 20)."""
     normals: Literal["analytic", "fd"] = "analytic"
     fd_step: float = 1.0
     """Central-difference half-step in voxels (normals: fd)."""
