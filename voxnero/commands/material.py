@@ -120,7 +120,9 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
     t0 = time.perf_counter()
     scene = load_scene(scene_path, splits=("train",))
     train = scene.split("train")
-    gains_path = mesh_path.parent / "exposure.json"
+    from voxnero.shape.run_files import EXPOSURE
+
+    gains_path = mesh_path.parent / EXPOSURE
     if gains_path.is_file():  # stage 1 measured the photos' exposures: undo them
         from voxnero.fields.exposure import read_gains
 

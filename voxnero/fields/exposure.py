@@ -1,7 +1,8 @@
 """Per-image exposure and white balance: a gain per training photo and colour channel.
 
 Real captures are not always taken at one exposure: on dtu_scan97 the same surface point reads
-0.55–1.6× its mean brightness from view to view (docs/STAGE1.md, finding 20), which no static
+0.54–1.26× from photo to photo on the object, 0.57–1.67× on the table (docs/STAGE1.md,
+finding 20), which no static
 light can explain, so the surface bends to explain it. The photo of image ``i`` is modelled as
 ``gain_i · rendered`` with a gain per channel (exposure and white balance)::
 
@@ -125,4 +126,3 @@ def read_gains(path: str | Path, names: list[str]) -> torch.Tensor:
                         f"{missing[0]!r}): written for another scene", path=path,
                         fix="delete it, or pass the stage-1 run of this scene")
     return torch.tensor([table[str(n)] for n in names], dtype=torch.float32)
-

@@ -278,8 +278,9 @@ class LightConfig:
     """A gain per training photo and colour channel (exposure and white balance,
     :mod:`voxnero.fields.exposure`). "auto": measured after the coarse stage, from how far each
     photo's well-exposed pixels sit from the coarse model's renders (one median ratio per photo
-    and channel); on iff the spread over the photos reaches ``exposure_min_spread``, the gains
-    then start from the measured ratios (:mod:`voxnero.shape.exposure`). Without a coarse stage
+    and channel); on iff the spread over the photos reaches ``exposure_min_spread`` and the
+    object's and the background's ratios agree (``exposure_min_agreement``); the gains then
+    start from the measured ratios (:mod:`voxnero.shape.exposure`). Without a coarse stage
     "auto" is off (a sphere start of a race takes the coarse start's decision)."""
     exposure_min_spread: float = 0.05
     """Standard deviation over the photos of the measured log gain above which "auto" turns the

@@ -4,9 +4,10 @@
 After the coarse stage (a free density and colour fitted to all photos at once, so it renders
 their consensus), every photo's well-exposed pixels are rendered and compared with the photo:
 the median log ratio per photo and channel is that photo's gain relative to the others
-(:func:`voxnero.fields.exposure.measure_log_gains`). Their spread over the photos decides: on
-at ``light.exposure_min_spread`` or more, and the learnable gains
-(:class:`voxnero.fields.exposure.ImageGains`) start from the measured ratios. A scene rendered
+(:func:`voxnero.fields.exposure.measure_log_gains`). On when they spread by
+``light.exposure_min_spread`` or more and the gains of the object's and of the background's
+pixels agree (``light.exposure_min_agreement``: :func:`decide`); the learnable gains
+(:class:`voxnero.fields.exposure.ImageGains`) then start from the measured ratios. A scene rendered
 at one exposure measures well under the line; the decision and the per-photo gains go to
 ``decisions.json``.
 """

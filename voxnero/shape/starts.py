@@ -21,7 +21,7 @@ import torch
 
 from voxnero.fields.lights import EnvLight
 from voxnero.render.mip import resample_area
-from voxnero.shape import adaptive, exposure, losses, schedules
+from voxnero.shape import adaptive, exposure, losses, run_files, schedules
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.renderer import as_photographed, background, render_rays
 
@@ -246,9 +246,6 @@ def race(tr: ShapeTrainer) -> Path:
     roughs = [r for r in lc.init_roughness_candidates if r != lc.init_roughness]
     runs: list[tuple[str, float, ShapeTrainer | None]] = []  # (folder name, fit, trainer)
     measured: list[adaptive.Decision] = []  # the coarse start's "auto" exposure decision
-
-    def exposure_decision() -> adaptive.Decision | None:
-        return measured[0] if measured and tr.cfg_in.light.exposure == "auto" else None
     seconds, steps = 0.0, 0
 
     def start(radius: float | None, rough: float | None, k: int, n: int) -> float:
@@ -265,16 +262,17 @@ def race(tr: ShapeTrainer) -> Path:
         else:
             sub = replace(sub, grid=replace(sub.grid, init_radius=radius),
                           coarse=replace(co, iters=0))
-        taken = exposure_decision()
-        if radius is not None and taken is not None:
-            # a sphere start has no coarse stage to measure the photos on: it takes the
-            # coarse start's decision
+        # a sphere start has no coarse stage to measure the photos on: it takes the coarse
+        # start's "auto" decision
+        taken = measured[0] if radius is not None and measured and lc.exposure == "auto" \
+            else None
+        if taken is not None:
             sub = replace(sub, light=replace(sub.light,
                                              exposure="on" if taken.value else "off"))
         folder = tr.out / "starts" / name
         tr.log(f"[shape] start {name} ({k} of {n}): a complete run in {folder}")
         child = type(tr)(sub, tr.scene, folder, tr.device, tr.progress, tr.log)
-        if radius is not None and taken is not None:
+        if taken is not None:
             child.decisions = [x for x in child.decisions if x.name != "exposure"] + [
                 adaptive.Decision("exposure", taken.value, lc.exposure,
                                   "the coarse start's measurement: " + taken.reason,
@@ -333,10 +331,10 @@ def race(tr: ShapeTrainer) -> Path:
     name, _, win = runs[best_k]
     assert win is not None
     tr.outputs.mkdir(parents=True, exist_ok=True)
-    for fname in ("mesh.ply", "sdf.npz", "envmap.exr", "shape.json", "exposure.json"):
-        if fname == "exposure.json" and not (win.out / fname).is_file():
-            continue  # written only with the exposure switch on
+    for fname in ("mesh.ply", "sdf.npz", "envmap.exr", "shape.json"):
         shutil.copyfile(win.out / fname, tr.outputs / fname)
+    if (win.out / run_files.EXPOSURE).is_file():  # written with the exposure switch on
+        shutil.copyfile(win.out / run_files.EXPOSURE, tr.outputs / run_files.EXPOSURE)
     with open(tr.out / "log.jsonl", "w") as fh:
         for other, _, _ in runs:
             src = tr.out / "starts" / other / "log.jsonl"
