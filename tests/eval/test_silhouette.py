@@ -16,9 +16,11 @@ from voxnero.data.idr import load_idr
 from voxnero.eval.silhouette import (
     cull_by_masks,
     cull_mesh,
+    cull_refined,
     disk_dilate,
     silhouette_scores,
     silhouettes,
+    split_triangles,
 )
 
 
@@ -122,3 +124,51 @@ def test_eval_command_on_a_capture(capture, tmp_path, capsys):
     m = json.loads((tmp_path / "e" / "metrics.json").read_text())
     assert m["silhouette"]["iou"] > 0.97 and m["n_views"] == 3 and m["n_train_views"] == 14
     assert (tmp_path / "e" / "mesh_culled.ply").is_file()
+
+
+def _down_camera(size: int = 64):
+    """One OpenCV camera at (0, 0, 2) looking down -z; the image spans x, y in [-1, 1] at z = 0."""
+    import torch
+
+    from voxnero.cameras.cameras import Cameras
+
+    f = float(size)
+    K = torch.tensor([[[f, 0, size / 2], [0, f, size / 2], [0, 0, 1.0]]])
+    c2w = torch.eye(4)[None].clone()
+    c2w[0, :3, 1] = torch.tensor([0.0, -1.0, 0.0])  # image down = world -y
+    c2w[0, :3, 2] = torch.tensor([0.0, 0.0, -1.0])  # forward = world -z
+    c2w[0, :3, 3] = torch.tensor([0.0, 0.0, 2.0])
+    return Cameras(K, c2w, size, size)
+
+
+def test_split_triangles_keeps_the_surface():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+    t = np.array([[0, 1, 2], [1, 3, 2]])
+    v2, t2 = split_triangles(v, t, np.array([True, False]))
+    assert len(t2) == 5 and len(v2) == 7  # 1 kept + 4 new; three midpoints
+    area = lambda vv, tt: 0.5 * np.linalg.norm(  # noqa: E731
+        np.cross(vv[tt[:, 1]] - vv[tt[:, 0]], vv[tt[:, 2]] - vv[tt[:, 0]]), axis=1)
+    assert np.isclose(area(v2, t2).sum(), 1.0)  # same surface
+    n = np.cross(v2[t2[:, 1]] - v2[t2[:, 0]], v2[t2[:, 2]] - v2[t2[:, 0]])
+    assert (n[:, 2] > 0).all()  # winding kept (all counter-clockwise from +z)
+
+
+def test_culling_a_coarse_mesh_removes_pixels_not_triangles():
+    """Two triangles fill a view whose mask is its left half: per vertex, every triangle has a
+    vertex on the right and all is culled; split along the boundary, the left half stays."""
+    cams = _down_camera(64)
+    mask = np.zeros((1, 64, 64), bool)
+    mask[:, :, :32] = True  # x < 0
+    corners = 0.9 * np.array([[-1, -1, 0], [1, -1, 0], [-1, 1, 0], [1, 1, 0.0]])
+    quad = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(corners),
+        o3d.utility.Vector3iVector(np.array([[0, 1, 2], [1, 3, 2]], np.int32)))
+    keep, _ = cull_by_masks(np.asarray(quad.vertices), cams, mask, dilate_px=0)
+    assert len(cull_mesh(quad, keep).triangles) == 0
+    culled, rec = cull_refined(quad, cams, mask, dilate_px=0, edge_px=1.0, rounds=8)
+    assert rec["refine"]["rounds"] >= 5
+    truth = silhouettes(quad, cams) & mask  # the quad's pixels inside the mask
+    s = silhouette_scores(silhouettes(culled, cams), truth)
+    assert s["precision"] == 1.0 and s["recall"] > 0.95  # within ~a pixel of the boundary
+    off, _ = cull_refined(quad, cams, mask, dilate_px=0, edge_px=0.0)
+    assert len(off.triangles) == 0  # edge_px = 0: per vertex, as before

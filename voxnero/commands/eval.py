@@ -21,7 +21,8 @@ albedo PSNR, metallic / roughness MAE, plus ``render_<view>.png`` comparisons.
 
 A real capture without a GT mesh but with object masks (DTU in the NeuS/IDR layout) is scored by
 :mod:`voxnero.eval.silhouette`: the mesh is culled by the training views' masks (dilated by
-``eval.cull_dilate`` = 2 px), then silhouette IoU, precision and recall at the held-out views,
+``eval.cull_dilate`` = 2 px; triangles across a mask boundary split to ``eval.cull_edge_px`` = 1 px
+first), then silhouette IoU, precision and recall at the held-out views,
 and for a stage-2 run the PSNR of its renders inside the held-out masks. Which protocol applies
 is :func:`voxnero.eval.protocol.evaluate_target`'s choice.
 """
@@ -51,7 +52,10 @@ DESCRIPTION = (
     "samples of one render pass, default [64, 64, 64]), material_passes (stage 2: at most this "
     "many passes per view, default 4; they stop once their noise is material_noise_share, "
     "default 0.1, of the error), material_subpixels (stage 2: points per pixel of the box "
-    "filter, default 16), cull_dilate (captures: mask dilation in px, default 2).\n\n"
+    "filter, default 16), cull_dilate (captures: mask dilation in px, default 2), "
+    "cull_edge_px (captures: triangles across a mask boundary are split to edges of this many "
+    "px before the per-vertex culling, "
+    "default 1, 0 = off).\n\n"
     "A capture with object masks and no ground truth (NeuS/IDR, e.g. DTU): the mesh is culled by "
     "the training views' masks, then silhouette IoU / precision / recall at the held-out views "
     "(and PSNR inside the masks for a stage-2 run).")

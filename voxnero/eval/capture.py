@@ -31,8 +31,7 @@ def evaluate_capture(mesh_path: Path, scene_path: Path, cfg, out: Path,
     from voxnero.errors import DataError
     from voxnero.eval.report import write_report
     from voxnero.eval.silhouette import (
-        cull_by_masks,
-        cull_mesh,
+        cull_refined,
         silhouette_scores,
         silhouettes,
     )
@@ -55,8 +54,7 @@ def evaluate_capture(mesh_path: Path, scene_path: Path, cfg, out: Path,
         mesh = load_mesh(mesh_path, norm=scene.norm)  # unit frame, like the cameras
     t_load = time.perf_counter() - t0
     t1 = time.perf_counter()
-    keep, rec = cull_by_masks(np.asarray(mesh.vertices), tr.cameras, tr.masks, cfg.cull_dilate)
-    culled = cull_mesh(mesh, keep)
+    culled, rec = cull_refined(mesh, tr.cameras, tr.masks, cfg.cull_dilate, cfg.cull_edge_px)
     pred = silhouettes(culled, te.cameras)
     sc = silhouette_scores(pred, te.masks)
     metrics: dict = {
@@ -65,7 +63,7 @@ def evaluate_capture(mesh_path: Path, scene_path: Path, cfg, out: Path,
                     "held-out views (voxnero.eval.silhouette)",
         "n_views": te.n, "n_train_views": tr.n,
         "mesh_stats": {"vertices": len(mesh.vertices), "triangles": len(mesh.triangles),
-                       "kept_vertices": int(keep.sum()),
+                       "kept_vertices": rec.pop("kept_vertices"),
                        "culled_triangles": len(culled.triangles)},
         "cull": rec, "silhouette": sc}
     if len(culled.triangles) == 0:

@@ -18,6 +18,7 @@ class EvalConfig:
         "voxel": Range(0.0, 1e6), "views": at_least(0), "images": at_least(0, 10000),
         "material_views": at_least(1, also=(-1,)), "material_spp": at_least(0, 4096),
         "material_subpixels": at_least(1, 1024), "cull_dilate": at_least(0, 64),
+        "cull_edge_px": Range(0.0, 1e6),
         "material_passes": at_least(2, 64), "material_noise_share": Range(0.0, 1.0)}
     """Allowed values (:func:`voxnero.config.check_numbers`), checked before ``validate``."""
 
@@ -62,6 +63,12 @@ class EvalConfig:
     cull_dilate: int = 2
     """Captures without a GT mesh: dilation (pixels) of the training masks that cull the mesh
     before its silhouettes are scored (:mod:`voxnero.eval.silhouette`)."""
+
+    cull_edge_px: float = 1.0
+    """Captures without a GT mesh: triangles that straddle a mask boundary are split at their
+    midpoints (same surface) until their edges are at most this many pixels long, so a vertex
+    off the masks takes about a pixel of surface with it, not a whole coarse triangle; 0 = cull
+    per vertex as extracted (:func:`voxnero.eval.silhouette.cull_refined`)."""
 
     def validate(self) -> None:
         """Check what ``RANGES`` cannot (single values are checked before)."""

@@ -6,7 +6,12 @@ The protocol (the DTU/NeuS practice, turned into silhouettes):
    the backdrop and whatever else lies in the region of interest. A vertex is kept if it
    projects inside the mask of **every training view that sees it** (in front of the camera and
    inside the image), masks dilated by ``dilate_px`` pixels (2) so that a true surface point is
-   not lost to a mask boundary that is a pixel off. Faces keep all three vertices.
+   not lost to a mask boundary that is a pixel off. Faces keep all three vertices. The test is
+   per vertex, so triangles that straddle a mask boundary are first split at their midpoints
+   (:func:`cull_refined`, the same surface) until their edges are at most ``edge_px`` pixels
+   long: on a coarse mesh a single vertex outside one mask takes whole triangles whose surface
+   projects inside every mask with it (dtu_scan97, a 192³ marching-cubes mesh with 2.2-pixel
+   edges: held-out IoU 0.923 per vertex, 0.927 / 0.929 after one / two uniform subdivisions).
 2. **Silhouettes** (:func:`silhouettes`): the culled mesh is ray-cast through every pixel centre
    of the held-out views; a pixel is "object" when its ray hits the mesh.
 3. **Scores** (:func:`silhouette_scores`): IoU, precision ``|P ∩ G| / |P|`` and recall
@@ -31,6 +36,8 @@ if TYPE_CHECKING:
 
 DILATE_PX = 2
 """Dilation of the training masks for the culling, in pixels."""
+EDGE_PX = 1.0
+"""Longest mesh edge, in pixels of the training views, before the per-vertex culling."""
 
 
 def disk_dilate(mask: np.ndarray, px: int) -> np.ndarray:
@@ -95,6 +102,80 @@ def cull_by_masks(points: np.ndarray, cameras: Cameras, masks, dilate_px: int = 
         keep &= ~seen | inside
         seen_any |= seen
     return keep, {"views": n, "dilate_px": int(dilate_px), "unseen": int((~seen_any).sum())}
+
+
+def pixel_footprint(points: np.ndarray, cameras: Cameras) -> float:
+    """World length of one pixel at ``points``' centre: the median over the views of its
+    distance to the camera over the focal length (pixels), in the cameras' frame units."""
+    c = np.asarray(points, np.float64).mean(0)
+    dist = np.linalg.norm(as_numpy(cameras.c2w)[:, :3, 3] - c, axis=1)
+    K = as_numpy(cameras.K)
+    focal = 0.5 * (K[:, 0, 0] + K[:, 1, 1])
+    return float(np.median(dist / focal))
+
+
+def split_triangles(vertices: np.ndarray, triangles: np.ndarray, which: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Split the triangles ``which`` (bool ``(F,)``) into four at their edge midpoints.
+
+    A midpoint shared by two split triangles is one vertex; a neighbour left whole keeps its
+    edge (a T-junction: the midpoint lies on that edge, so the surface is unchanged).
+
+    Returns:
+        ``vertices (V', 3)`` (the old ones first) and ``triangles (F', 3)`` wound as before.
+    """
+    t = triangles[which]
+    if len(t) == 0:
+        return vertices, triangles
+    edges = np.stack([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]], 1).reshape(-1, 2)
+    key = np.sort(edges, 1)
+    uniq, inv = np.unique(key, axis=0, return_inverse=True)
+    mid = 0.5 * (vertices[uniq[:, 0]] + vertices[uniq[:, 1]])
+    m = (len(vertices) + inv.reshape(-1, 3))  # midpoints of edges 01, 12, 20
+    a, b, c = t[:, 0], t[:, 1], t[:, 2]
+    m01, m12, m20 = m[:, 0], m[:, 1], m[:, 2]
+    new = np.concatenate([np.stack([a, m01, m20], 1), np.stack([m01, b, m12], 1),
+                          np.stack([m20, m12, c], 1), np.stack([m01, m12, m20], 1)])
+    return np.concatenate([vertices, mid]), np.concatenate([triangles[~which], new])
+
+
+def cull_refined(mesh: o3d.geometry.TriangleMesh, cameras: Cameras, masks,
+                 dilate_px: int = DILATE_PX, edge_px: float = EDGE_PX, rounds: int = 6
+                 ) -> tuple[o3d.geometry.TriangleMesh, dict]:
+    """:func:`cull_by_masks` per vertex, with the triangles that straddle a mask boundary (some
+    vertices kept, some not) split at their midpoints (the same surface) until their edges are
+    at most ``edge_px`` pixels at the scene's :func:`pixel_footprint` or ``rounds`` splits:
+    then a vertex off the masks takes about a pixel of surface with it, not a whole triangle
+    whose surface mostly projects inside every mask.
+
+    Returns:
+        The culled mesh and :func:`cull_by_masks`' record with ``"refine": {"edge_px",
+        "rounds", "split_triangles"}`` added (``edge_px`` ≤ 0: no splitting).
+    """
+    v = np.asarray(mesh.vertices, np.float64)
+    t = np.asarray(mesh.triangles, np.int64)
+    keep, rec = cull_by_masks(v, cameras, masks, dilate_px)
+    info = {"edge_px": float(edge_px), "rounds": 0, "split_triangles": 0}
+    if len(t) and edge_px > 0:
+        px = pixel_footprint(v, cameras)
+        for _ in range(rounds):
+            k = keep[t]
+            mixed = k.any(1) & ~k.all(1)
+            longest = np.linalg.norm(v[t] - v[t[:, [1, 2, 0]]], axis=-1).max(1) / px
+            mixed &= longest > edge_px
+            if not mixed.any():
+                break
+            n_old = len(v)
+            v, t = split_triangles(v, t, mixed)
+            k_new, _ = cull_by_masks(v[n_old:], cameras, masks, dilate_px)
+            keep = np.concatenate([keep, k_new])
+            info["rounds"] += 1
+            info["split_triangles"] += int(mixed.sum())
+    out = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v),
+                                    o3d.utility.Vector3iVector(t.astype(np.int32)))
+    rec["refine"] = info
+    rec["kept_vertices"] = int(keep.sum())
+    return cull_mesh(out, keep), rec
 
 
 def cull_mesh(mesh: o3d.geometry.TriangleMesh, keep: np.ndarray) -> o3d.geometry.TriangleMesh:
