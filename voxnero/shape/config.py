@@ -95,7 +95,8 @@ class CoarseConfig:
     through, and the filled occupancy becomes the SDF's first surface instead of a sphere."""
 
     RANGES: ClassVar[dict[str, Range]] = {
-        "iters": at_least(0, BIG_COUNT), "res": at_least(8, 1024), "samples": at_least(2, 4096),
+        "iters": at_least(0, BIG_COUNT), "near_iters": at_least(0, BIG_COUNT),
+        "res": at_least(8, 1024), "samples": at_least(2, 4096),
         "rays": at_least(1, BIG_COUNT), "feat_dim": at_least(1, 256), "hidden": at_least(1, 1024),
         "alpha_init": Range(0.0, 1.0, lo_open=True, hi_open=True), "lr_grid": LEARNING_RATE,
         "lr_head": LEARNING_RATE, "tv": WEIGHT, "margin": Range(0.0, 64.0),
@@ -130,6 +131,9 @@ class CoarseConfig:
     with floaters, among which thin parts are lost. Corpus `preview`, coarse start alone, rows
     64 / 128 / 256: table_oak 16.8 / 4.3 / 0.86 px, gear 2.07 / 1.87 / 1.80, bunny 1.35 / 1.26 /
     1.63, median 1.25 / 1.20 / 1.09 px (docs/STAGE1.md finding 19)."""
+    near_iters: int = 0
+    """Steps of stage 1 (instead of ``iters``) when the background is near; such a scene never
+    races sphere starts (:func:`voxnero.shape.starts.near_start`). 0 = ``iters``."""
     race: bool = True
     """Race the coarse start against the sphere of ``grid.init_radius`` (complete runs, the
     better final fit kept, :func:`voxnero.shape.starts.race`): a mirror's density can be a

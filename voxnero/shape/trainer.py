@@ -76,6 +76,9 @@ class ShapeTrainer:
             cfg = starts.with_coarse_schedule(cfg)
         self.cfg = cfg = adaptive.adapt_config(cfg, scene, self.decisions)
         self.sw = light_switch.resolve_switches(cfg, scene, self.decisions)
+        # a near background: the carved start alone, with the race's time (starts.near_start)
+        self.cfg = cfg = starts.near_start(cfg, self.sw.background, self.decisions)
+        self.cfg_in = starts.near_start(self.cfg_in, self.sw.background, [])
         self.occ_pending = cfg.light.occlusion == "auto"
         """An "auto" occlusion not yet measured on (re-measured until ``decide_until``)."""
         self.fingerprint = fingerprint.make(cfg, scene=fingerprint.scene_digest(scene))
