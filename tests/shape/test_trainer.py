@@ -459,3 +459,18 @@ def test_exposure_on_learns_per_photo_gains(scene, tmp_path):
     ck = torch.load(tmp_path / CKPT, weights_only=False)
     assert ck["switches"]["exposure"] is True
     assert torch.equal(ck["model"]["gains.log_gain"], tr.model.gains.log_gain.detach())
+
+
+def test_near_background_trainer_runs_the_carved_start_alone(scene, tmp_path):
+    """The trainer applies :func:`starts.near_start` after the background decision: with a near
+    background (forced here) neither its config nor the config its race would use races, and
+    stage 1 takes ``coarse.near_iters`` steps; a distant one keeps the race."""
+    cfg = _cfg(40)
+    cfg.coarse.iters, cfg.coarse.near_iters, cfg.grid.init_candidates = 5, 60, [0.5]
+    cfg.light.background = "near"
+    tr = ShapeTrainer(cfg, scene, tmp_path / "near", progress=False, log=lambda m: None)
+    assert tr.cfg.iters == 60 and not starts.has_race(tr.cfg) and not starts.has_race(tr.cfg_in)
+    assert [d.value for d in tr.decisions if d.name == "start"] == ["coarse"]
+    cfg.light.background = "distant"
+    tr = ShapeTrainer(cfg, scene, tmp_path / "far", progress=False, log=lambda m: None)
+    assert tr.cfg.iters == 40 and starts.has_race(tr.cfg)
