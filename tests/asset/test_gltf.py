@@ -126,3 +126,23 @@ def test_header_lengths(tmp_path, sphere_textured):
     data = path.read_bytes()
     magic, version, length = struct.unpack_from("<4sII", data)
     assert (magic, version, length) == (b"glTF", 2, len(data)) and len(data) % 4 == 0
+
+
+def test_the_diffuse_convention_travels_in_the_sidecar(tmp_path, sphere_textured):
+    """``voxnero material`` names the diffuse lobe its base colour was fitted with; reading
+    the file back gives renders the same lobe. A glTF without our sidecar (any other tool's)
+    is glTF's own convention, "weighted"; a name no model has is refused."""
+    import pytest
+
+    from voxnero.asset.gltf import diffuse_sidecar, load_glb
+    from voxnero.errors import ConfigError
+
+    _, tm = sphere_textured
+    p = write_glb(tmp_path / "a.glb", tm, sidecar=diffuse_sidecar("principled"))
+    assert load_glb(p).diffuse == "principled"
+    q = write_glb(tmp_path / "b.glb", tm)
+    assert load_glb(q).diffuse == "weighted"
+    (tmp_path / "b.glb.json").unlink()
+    assert load_glb(q).diffuse == "weighted"
+    with pytest.raises(ConfigError):
+        diffuse_sidecar("lambert")

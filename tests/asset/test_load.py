@@ -112,6 +112,8 @@ def test_ground_truth_asset():
     np.testing.assert_allclose(alb.numpy(), [doc["base_color"]] * 2, atol=1e-7)
     assert float(met[0, 0]) == doc["metallic"] and float(rough[1, 0]) == doc["roughness"]
     assert a.scene == DEV / "torus_ceramic"
+    # rendered by Mitsuba's principled BSDF (material.json "bsdf"): renders use its diffuse lobe
+    assert a.diffuse == "principled"
     # torus R 0.62 + r 0.26: bounding radius 0.88 about the origin
     c, r = a.bounds()
     assert np.abs(c).max() < 0.01 and abs(r - 0.88) < 0.01

@@ -114,3 +114,61 @@ def test_brdf_grazing_exact_cases():
         f = brdf_eval(n, v, l, torch.ones(4, 3), torch.ones(4, 1), torch.full((4, 1), r))
         assert torch.isfinite(f).all() and (f >= 0).all()
         assert (f[0] == 0).all() and (f[3] == 0).all()
+
+
+# -- the principled (Disney 2015) diffuse lobe -------------------------------------------------
+
+
+def _diffuse_part(n, v, l, r, diffuse):
+    """The diffuse lobe alone: albedo 1 minus albedo 0 (a dielectric's F0 is 0.04 either way)."""
+    N = n.shape[0]
+    m = torch.zeros(N, 1, dtype=n.dtype)
+    one, zero = torch.ones(N, 3, dtype=n.dtype), torch.zeros(N, 3, dtype=n.dtype)
+    return (brdf_eval(n, v, l, one, m, r, diffuse) - brdf_eval(n, v, l, zero, m, r, diffuse))
+
+
+@settings(max_examples=60, deadline=None)
+@given(r=st.floats(0.0, 1.0), tv=st.floats(0.0, 1.5), tl=st.floats(0.0, 1.5),
+       pv=st.floats(0.0, 6.28), pl=st.floats(0.0, 6.28))
+def test_principled_diffuse_formula_and_reciprocity(r, tv, tl, pv, pl):
+    n = torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)
+    v = _sph(torch.tensor([tv], dtype=torch.float64), torch.tensor([pv], dtype=torch.float64))
+    l = _sph(torch.tensor([tl], dtype=torch.float64), torch.tensor([pl], dtype=torch.float64))
+    rr = torch.tensor([[r]], dtype=torch.float64)
+    f = _diffuse_part(n, v, l, rr, "principled")
+    assert torch.allclose(f, _diffuse_part(n, l, v, rr, "principled"), rtol=1e-9, atol=1e-12)
+    # Burley 2015 / Mitsuba principled, written out: F_x = (1 - cos)^5, R_r = 2 r cos_d^2
+    h = (v + l) / (v + l).norm()
+    fv, fl = (1 - math.cos(tv)) ** 5, (1 - math.cos(tl)) ** 5
+    rr_ = 2 * r * float((l * h).sum()) ** 2
+    w = (1 - fl / 2) * (1 - fv / 2) + rr_ * (fl + fv + fl * fv * (rr_ - 1))
+    assert math.isclose(float(f[0, 0]), w / math.pi, rel_tol=1e-6, abs_tol=1e-12)
+
+
+def test_principled_diffuse_albedo_at_normal_view_closed_form():
+    # v = n: l.h = cos(theta_l / 2), so R_r = r (1 + mu) and the cosine integral of W is
+    # 1 - 1/42 + 5 r / 84 (Beta integrals of (1 - mu)^5 mu^k); the weighted lobe's is 1 - E_d(1)
+    n_th, n_ph = 400, 8
+    th = (torch.arange(n_th, dtype=torch.float64) + 0.5) * (math.pi / 2) / n_th
+    ph = (torch.arange(n_ph, dtype=torch.float64) + 0.5) * 2 * math.pi / n_ph
+    T, P = torch.meshgrid(th, ph, indexing="ij")
+    l = _sph(T.reshape(-1), P.reshape(-1))
+    N = l.shape[0]
+    n = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(N, 3)
+    dw = (torch.sin(T) * (math.pi / 2) / n_th * 2 * math.pi / n_ph).reshape(-1)
+    for r in (0.0, 0.3, 1.0):
+        rr = torch.full((N, 1), r, dtype=torch.float64)
+        f = _diffuse_part(n, n, l, rr, "principled")[:, 0]
+        albedo = float((f * l[:, 2] * dw).sum())
+        assert math.isclose(albedo, 1 - 1 / 42 + 5 * r / 84, rel_tol=2e-4), (r, albedo)
+
+
+def test_unknown_diffuse_model_is_a_config_error():
+    import pytest
+
+    from voxnero.errors import ConfigError
+    from voxnero.render.brdf import check_diffuse
+
+    assert check_diffuse("principled") == "principled"
+    with pytest.raises(ConfigError, match="diffuse"):
+        check_diffuse("lambert")

@@ -37,6 +37,7 @@ from PIL import Image
 from voxnero.asset.model import Asset, make_asset, material_from_maps
 from voxnero.errors import DataError
 from voxnero.io.color import linear_to_srgb
+from voxnero.render.brdf import check_diffuse
 
 if TYPE_CHECKING:  # the writers take a baked mesh; baking (Open3D) is not needed to read
     from voxnero.asset.textures import TexturedMesh
@@ -70,6 +71,22 @@ def texture_images(tm: TexturedMesh) -> tuple[np.ndarray, np.ndarray]:
     mr[..., 1] = tm.roughness
     mr[..., 2] = tm.metallic
     return base, mr
+
+
+DIFFUSE_NOTES = {
+    "principled": "base colour fitted with the diffuse lobe of the principled BSDF (Disney / "
+                  "Burley 2015, with retro-reflection, not weighted by the specular Fresnel: "
+                  "Mitsuba's and Cycles' principled). A renderer using glTF's fresnel_mix "
+                  "(Lambert weighted by 1 - F) shows dielectrics a few percent darker.",
+    "weighted": "base colour fitted with glTF's fresnel_mix diffuse (Lambert weighted by the "
+                "specular interface's 1 - F).",
+}
+
+
+def diffuse_sidecar(diffuse: str) -> dict[str, str]:
+    """Sidecar entries naming the diffuse convention the base colour was fitted with
+    (``voxnero.render.brdf.DIFFUSE_MODELS``); :func:`load_glb` reads ``diffuse`` back."""
+    return {"diffuse": check_diffuse(diffuse), "diffuse_note": DIFFUSE_NOTES[diffuse]}
 
 
 def write_glb(path: str | Path, tm: TexturedMesh, name: str = "voxnero",
@@ -265,6 +282,7 @@ def load_glb(path: str | Path) -> Asset:
     mat = material_from_maps(uv, base, None if mr is None else mr[..., 2],
                              None if mr is None else mr[..., 1], bcf, mf, rf)
     asset = make_asset(pos, idx, nrm, mat, up, str(path))
+    asset.diffuse = check_diffuse(str(meta.get("diffuse", "weighted")))
     if meta.get("scene"):
         asset.scene = Path(meta["scene"])
     return asset

@@ -48,4 +48,7 @@ def load_gt(scene: str | Path) -> Asset:
               np.asarray(mesh.vertex_normals), mat, np.asarray(up, dtype=np.float64),
               f"gt:{root}")
     a.scene = root
+    # the renderer that made the scene names its BSDF: Mitsuba's principled for the dev scenes
+    # and the corpus, the project's own BRDF for `voxnero synth` scenes
+    a.diffuse = "principled" if "principled" in str(doc.get("bsdf", "")) else "weighted"
     return a

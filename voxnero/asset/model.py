@@ -105,6 +105,8 @@ class Asset:
         source: what was loaded (file or ``gt:...``), for logs.
         stage1_mesh: the stage-1 mesh file of the run, if any (viewer).
         scene: the scene folder named by the asset's metadata, if any.
+        diffuse: the BRDF's diffuse convention the material is meant for
+            (``voxnero.render.brdf.DIFFUSE_MODELS``): what renders of the asset use.
     """
 
     vertices: Tensor
@@ -115,6 +117,7 @@ class Asset:
     source: str = ""
     stage1_mesh: Path | None = None
     scene: Path | None = None
+    diffuse: str = "weighted"
 
     def material_at(self, tri: Tensor, bary: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Albedo (N, 3) linear, metallic (N, 1), roughness (N, 1) at hits.

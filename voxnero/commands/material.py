@@ -94,7 +94,7 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
     import torch
 
     from voxnero.asset.envmap import write_envmap
-    from voxnero.asset.gltf import write_glb
+    from voxnero.asset.gltf import diffuse_sidecar, write_glb
     from voxnero.asset.obj import write_obj
     from voxnero.asset.textures import bake_textures
     from voxnero.config import save_resolved
@@ -165,7 +165,8 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
     mesh_in = load_mesh(mesh_path)  # input frame, same vertex order
     tm = bake_textures(mesh_in, a.numpy(), m.numpy(), r.numpy(), cfg.texture_size)
     up = [float(x) for x in scene.up]
-    write_glb(out / "model.glb", tm, sidecar={"scene_up": up, "scene": str(scene_path)})
+    write_glb(out / "model.glb", tm, sidecar={"scene_up": up, "scene": str(scene_path),
+                                              **diffuse_sidecar(cfg.render.diffuse)})
     write_obj(out / "model.obj", tm)
     write_envmap(out / "envmap.exr", env.numpy(), extra={"scene_up": up,
                                                          "made_by": "voxnero material"})
@@ -192,7 +193,8 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
                                       trainer.indirect_model, trainer.visibility,
                                       cfg.eval_views, out / "eval",
                                       subpixels=cfg.render.eval_subpixels,
-                                      bounces=trainer.bounces))
+                                      bounces=trainer.bounces,
+                                      diffuse=cfg.render.diffuse))
         times["eval_s"] = time.perf_counter() - t3
     (out / "metrics.json").write_text(json.dumps(json_safe(metrics), indent=1, default=str,
                                                  allow_nan=False))

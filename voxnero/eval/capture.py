@@ -151,7 +151,7 @@ def masked_psnr_stage2(run: Path, norm, split, cfg) -> tuple[dict, dict]:
     preds, gts, ms, images = [], [], [], {}
     for i in views:
         r = render_view(geom, asset.field, env, split.cameras, i, spp, True, True,
-                        generator=gen, subpixels=cfg.material_subpixels)
+                        generator=gen, subpixels=cfg.material_subpixels, diffuse=asset.diffuse)
         p = linear_to_srgb(r["rgb"].clamp(0, 1))
         g = linear_to_srgb(split.images[i].clamp(0, 1))
         preds.append(p)

@@ -58,7 +58,7 @@ def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]
     res = evaluate_scene(scene_path, geom, asset.field, env, spp, indirect, visibility,
                          views=cfg.material_views, out_dir=None, log=lambda _: None,
                          subpixels=cfg.material_subpixels, passes=cfg.material_passes,
-                         noise_share=cfg.material_noise_share)
+                         noise_share=cfg.material_noise_share, diffuse=asset.diffuse)
     if not res:
         return {"novel_view": "not evaluated: the scene has no test split"}, {}
     res.update(asset=str(run / "model.glb"), indirect=indirect, visibility=visibility)
@@ -67,7 +67,8 @@ def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]
     if split is not None and split.images is not None:
         for i in res["views"][:cfg.images]:
             r = render_view(geom, asset.field, env, split.cameras, i, spp, indirect, visibility,
-                            generator=gen, subpixels=cfg.material_subpixels)
+                            generator=gen, subpixels=cfg.material_subpixels,
+                            diffuse=asset.diffuse)
             images[f"render_{split.names[i]}"] = (linear_to_srgb(r["rgb"].clamp(0, 1)),
                                                   linear_to_srgb(split.images[i].clamp(0, 1)))
     return res, images

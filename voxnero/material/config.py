@@ -141,6 +141,16 @@ class RenderConfig:
     jitter: bool = True
     """Training renders each object pixel through a random point of its footprint, re-cast on
     the mesh (the photos are box-filtered over the pixel); False shades the cached centre hit."""
+    diffuse: Literal["weighted", "principled"] = "weighted"
+    """The BRDF's diffuse lobe (``voxnero.render.brdf``): "weighted" = Lambert energy-weighted
+    under the specular interface (glTF's ``fresnel_mix``, stage 1's); "principled" = the Disney
+    diffuse with retro-reflection of Mitsuba's ``principled`` BSDF, which rendered the dev
+    scenes and the corpus. With the TRUE mesh, material and map the photos are 1.01x our
+    "principled" render and 1.08x the "weighted" one (oak table), but fitted from the
+    background's start the "principled" lobe lets rough dielectrics turn into rough metals
+    (chair, duck: metallic 1, roughness 0.85-0.89), so it is not the default (docs/STAGE2.md,
+    session 18). Written to the asset's sidecar, so that ``voxnero relight`` and ``voxnero
+    eval`` render the asset as it was fitted."""
 
 
 @dataclass

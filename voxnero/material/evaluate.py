@@ -69,7 +69,8 @@ def indirect_model(indirect: bool | str, geom: Geometry | None = None,
 def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: int,
                 spp: Strategies, indirect: bool | str = True, visibility: bool = True,
                 chunk: int = 2048, generator: torch.Generator | None = None,
-                subpixels: int = 4, bounces: Bounces | None = None) -> dict[str, torch.Tensor]:
+                subpixels: int = 4, bounces: Bounces | None = None, diffuse: str = "weighted"
+                ) -> dict[str, torch.Tensor]:
     """Render one view (linear radiance, box-filtered over each pixel) and its material maps.
 
     Args:
@@ -85,6 +86,8 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
         generator: torch generator (jitter and Monte Carlo).
         subpixels: points per pixel averaged in linear radiance (1: the pixel centre only).
         bounces: the traced model's bounces (default :class:`Bounces`()).
+        diffuse: the BRDF's diffuse convention the material was fitted with
+            (``voxnero.render.brdf.DIFFUSE_MODELS``; an asset's ``diffuse``).
 
     Returns:
         dict of ``rgb`` (H, W, 3) linear, ``hit`` (H, W) bool (pixel centre hits the mesh),
@@ -106,7 +109,7 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
         model = indirect_model(True, geom, (t0[t0 >= 0], b0[t0 >= 0]))
     else:
         model = indirect_model(indirect)
-    ind = IndirectLight(env_image) if model != "off" else None
+    ind = IndirectLight(env_image, diffuse=diffuse) if model != "off" else None
     bnc = (bounces or Bounces()) if model == "traced" else None
     sampler = env_sampler(env_image) if spp.env else None
     counts = (spp.cos, spp.ggx, spp.env if sampler is not None else 0)
@@ -133,7 +136,8 @@ def render_view(geom: Geometry, field, env_image: torch.Tensor, cameras, index: 
                 x, n = geom.points_at(t, b), geom.normals_at(t, b)
                 c[j] = shade(geom, field, env_image, t, b, x, n, -d[j], sub, ind, sampler,
                              visibility, generator,
-                             [p[j.cpu()] if p is not None else None for p in pats], bnc)
+                             [p[j.cpu()] if p is not None else None for p in pats], bnc,
+                             diffuse)
             rgb += c / subpixels
         o, d = pixel_rays(cameras, cam, centre)
         _, tri, bary = geom.cast(o.to(dev), d.to(dev))
@@ -214,7 +218,8 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
                    spp: Strategies, indirect: bool | str, visibility: bool = True,
                    views: int = -1, out_dir: str | Path | None = None,
                    log=print, subpixels: int = 4, bounces: Bounces | None = None,
-                   passes: int = 1, noise_share: float = 0.1) -> dict[str, Any]:
+                   passes: int = 1, noise_share: float = 0.1, diffuse: str = "weighted"
+                   ) -> dict[str, Any]:
     """Novel-view, relighting and material-map metrics on a scene's test views.
 
     Args:
@@ -231,6 +236,7 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
         passes, noise_share: each test view is the mean of up to ``passes`` independent
             renders of ``spp``, stopped once their noise is ``noise_share`` of the error in the
             scored pixels (:func:`render_converged`); its relit renders use as many passes.
+        diffuse: the BRDF's diffuse convention (:func:`render_view`).
 
     Returns:
         Metrics dict (JSON-friendly); empty if the scene has no test split.
@@ -268,7 +274,8 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
                   else torch.ones(gt.shape[:2], dtype=torch.bool))
         r, conv[i] = render_converged(
             partial(render_view, geom, field, env_image, test.cameras, i, spp, indirect,
-                    visibility, generator=gen, subpixels=subpixels, bounces=bounces),
+                    visibility, generator=gen, subpixels=subpixels, bounces=bounces,
+                    diffuse=diffuse),
             gt, scored, passes, noise_share)
         renders[i] = r
         pred = srgb(r["rgb"])
@@ -309,7 +316,8 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
         for i in pick:
             r, _ = render_converged(
                 partial(render_view, geom, field, env_new, sp.cameras, i, spp, indirect,
-                        visibility, generator=gen, subpixels=subpixels, bounces=bounces),
+                        visibility, generator=gen, subpixels=subpixels, bounces=bounces,
+                        diffuse=diffuse),
                 sp.images[i], torch.ones(sp.images[i].shape[:2], dtype=torch.bool),
                 conv[i]["passes"], 0.0)
             full = (test.masks[i] >= 1 - 0.5 / 255) if test.masks is not None else r["hit"]

@@ -11,9 +11,10 @@ low-order light and no further bounce:
 
     L_o(y, w) = (1 − m) · (1 − E_d) · albedo · E(n_y) / π + L_blur(reflect(w, n_y)) · (F0 · A + B)
 
-with E the irradiance from the map's order-2 spherical-harmonic projection
-(``voxnero.render.sh``, Ramamoorthi and Hanrahan 2001), L_blur the map average-pooled to
-``8 × 16`` and (A, B) the split-sum terms (``voxnero.render.splitsum``).
+(without the factor 1 − E_d for the ``principled`` diffuse convention), with E the irradiance
+from the map's order-2 spherical-harmonic projection (``voxnero.render.sh``, Ramamoorthi and
+Hanrahan 2001), L_blur the map average-pooled to ``8 × 16`` and (A, B) the split-sum terms
+(``voxnero.render.splitsum``).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from voxnero.render.brdf import diffuse_weight
+from voxnero.render.brdf import check_diffuse, diffuse_weight
 from voxnero.render.latlong import dir_to_uv, envmap_lookup
 from voxnero.render.microfacet import f0_from
 from voxnero.render.sh import sh9_irradiance, sh9_project
@@ -88,11 +89,16 @@ class IndirectLight:
     Built once per training step from the current env image (keeps gradients to it).
     """
 
-    def __init__(self, env_image: Tensor, blur_height: int = 8):
+    def __init__(self, env_image: Tensor, blur_height: int = 8, diffuse: str = "weighted"):
         """Args:
             env_image: (H, W, 3) current linear env map.
             blur_height: height of the average-pooled map used for the specular part.
+            diffuse: the BRDF's diffuse convention (``voxnero.render.brdf.DIFFUSE_MODELS``):
+                "weighted" scales the diffuse part by 1 − E_d (the energy weight integrated
+                over the light); "principled" leaves it at 1 (its lobe is not weighted; its
+                retro-reflection is left out of this low-order estimate).
         """
+        self.weighted = check_diffuse(diffuse) == "weighted"
         self.sh = sh9_project(env_image)
         H = env_image.shape[0]
         k = max(1, H // blur_height)
@@ -115,5 +121,6 @@ class IndirectLight:
         r = 2 * nw * n - w
         spec = specular_split_sum(f0_from(albedo, metallic), nw.clamp_min(0.0), roughness,
                                   envmap_lookup(self.blur, r))
-        diff = (1 - metallic) * diffuse_weight(nw.clamp_min(0.0), roughness) * albedo * E / math.pi
+        w = diffuse_weight(nw.clamp_min(0.0), roughness) if self.weighted else 1.0
+        diff = (1 - metallic) * w * albedo * E / math.pi
         return torch.where(nw > 0, diff + spec, torch.zeros_like(diff))

@@ -27,6 +27,7 @@ from torch import Tensor
 
 from voxnero.material.lights import IndirectLight
 from voxnero.material.surface import Geometry
+from voxnero.render.brdf import check_diffuse
 from voxnero.render.envmap import EnvMap
 from voxnero.render.estimator import rotated_pattern, shade_mc
 from voxnero.render.estimator import sample_directions as _sample_directions
@@ -146,13 +147,16 @@ class Paths:
         generator: random stream.
         strategy: :func:`shade_mc`'s MIS heuristic ("mis" power, "balance"); the counts per
             strategy are given to :meth:`shade`.
+        diffuse: the BRDF's diffuse convention at every vertex of the paths
+            (``voxnero.render.brdf.DIFFUSE_MODELS``).
     """
 
     def __init__(self, geom: Geometry, material, radiance, sampler: EnvMap | None,
                  mode: str | None, tail: IndirectLight | None = None,
                  bounces: Bounces | None = None, generator: torch.Generator | None = None,
-                 strategy: str = "mis"):
+                 strategy: str = "mis", diffuse: str = "weighted"):
         self.strategy = strategy
+        self.diffuse = check_diffuse(diffuse)
         self.geom, self.material, self.radiance, self.sampler = geom, material, radiance, sampler
         self.mode, self.tail = mode, tail
         self.bounces = bounces or Bounces()
@@ -204,7 +208,7 @@ class Paths:
                         generator=self.gen, counts=spp.counts, sampler=self.sampler,
                         patterns=patterns, spawn=spawn, one_sample=one,
                         shares=material_shares(albedo, metallic, self.bounces.spp) if one
-                        else None)
+                        else None, diffuse=self.diffuse)
 
     def _hits(self, o: Tensor, d: Tensor):
         _, tri, bary = self.geom.cast(o, d)
@@ -269,8 +273,8 @@ class Paths:
 def shade(geom: Geometry, field, env_image: Tensor, tri: Tensor, bary: Tensor, x: Tensor,
           n: Tensor, v: Tensor, spp: Strategies, indirect: IndirectLight | None = None,
           env=None, visibility: bool = True, generator: torch.Generator | None = None,
-          patterns: list[Tensor | None] | None = None, bounces: Bounces | None = None
-          ) -> Tensor:
+          patterns: list[Tensor | None] | None = None, bounces: Bounces | None = None,
+          diffuse: str = "weighted") -> Tensor:
     """Outgoing radiance L_o(x, v) of surface points (see the module).
 
     Args:
@@ -288,6 +292,7 @@ def shade(geom: Geometry, field, env_image: Tensor, tri: Tensor, bary: Tensor, x
         patterns: uniform points per strategy (see :func:`sample_directions`).
         bounces: trace inter-reflections on the mesh (:class:`Bounces`); None: the ``indirect``
             estimate at the first secondary hit.
+        diffuse: the BRDF's diffuse convention (``voxnero.render.brdf.DIFFUSE_MODELS``).
 
     Returns:
         (N, 3) linear radiance.
@@ -299,5 +304,5 @@ def shade(geom: Geometry, field, env_image: Tensor, tri: Tensor, bary: Tensor, x
     else:
         mode = "splitsum" if indirect is not None else "off"
     paths = Paths(geom, field, lambda d: envmap_lookup(env_image, d), env, mode, indirect,
-                  bounces, generator)
+                  bounces, generator, diffuse=diffuse)
     return paths.shade(tri, bary, x, n, v, spp, 0, patterns)

@@ -243,7 +243,7 @@ class MaterialTrainer:
         if not self.jitter:
             return shade(self.geom, self.field, img, c.tri[idx], c.bary[idx], c.x[idx], c.n[idx],
                          c.v[idx], self.spp, indirect, sampler, self.visibility, self.gen,
-                         bounces=self.bounces)
+                         bounces=self.bounces, diffuse=self.cfg.render.diffuse)
         ci = idx.cpu()
         pix = c.pix[idx].cpu() + torch.rand(ci.shape[0], 2, generator=self.gen) - 0.5
         o, d = pixel_rays(c.cameras, c.cam[ci].cpu(), pix)
@@ -253,7 +253,8 @@ class MaterialTrainer:
         t, b = tri[h], bary[h]
         x, n = self.geom.points_at(t, b), self.geom.normals_at(t, b)
         lo = shade(self.geom, self.field, img, t, b, x, n, -d[h], self.spp, indirect, sampler,
-                   self.visibility, self.gen, bounces=self.bounces)
+                   self.visibility, self.gen, bounces=self.bounces,
+                   diffuse=self.cfg.render.diffuse)
         return envmap_lookup(img, d).index_put((h,), lo)
 
     def loss_terms(self) -> dict[str, torch.Tensor]:
@@ -262,7 +263,8 @@ class MaterialTrainer:
         idx = torch.randint(0, c.x.shape[0], (min(cfg.batch, c.x.shape[0]),),
                             generator=self.gen).to(self.device)
         img = self.env.image()
-        indirect = IndirectLight(img) if self.use_indirect else None
+        indirect = IndirectLight(img, diffuse=self.cfg.render.diffuse) \
+            if self.use_indirect else None
         sampler = env_sampler(img) if self.spp.env else None
         if cfg.render.decorrelate:
             # two independent estimates of the same pixels (see decorrelated_loss)

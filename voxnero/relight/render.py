@@ -178,7 +178,8 @@ class Relighter:
         c, r = asset.bounds()
         self.norm = Normalisation(c, max(r, 1e-9))
         self.geom = Geometry.from_legacy(asset.legacy_mesh(self.norm))
-        self.tail = IndirectLight(world_frame_map(env)) if cfg.tail == "splitsum" else None
+        self.tail = IndirectLight(world_frame_map(env), diffuse=asset.diffuse) \
+            if cfg.tail == "splitsum" else None
         self.exposure = 2.0 ** cfg.exposure
         self.spp = Strategies(*split_counts(cfg.dirs, cfg.strategy, True))
         bounce_spp = Strategies(*split_counts(cfg.bounce_dirs, cfg.strategy, True))
@@ -187,7 +188,7 @@ class Relighter:
         self.paths = Paths(self.geom.to(self.device), self._material, env.lookup, env, mode,
                            self.tail,
                            Bounces(cfg.bounces - 1, 0, 1.0, bounce_spp, one_sample=False),
-                           strategy=cfg.strategy)
+                           strategy=cfg.strategy, diffuse=asset.diffuse)
 
     # -- shading
     def _material(self, tri: Tensor, bary: Tensor, x: Tensor | None = None

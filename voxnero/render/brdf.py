@@ -1,6 +1,6 @@
 """The one BRDF of the project (both stages and the ground-truth path tracer render with it)::
 
-    f_r(v, l) = (1 - m) * albedo / pi  +  D(h) * G(v, l) * F(v.h) / (4 (n.v) (n.l))
+    f_r(v, l) = (1 - m) * albedo / pi * W  +  D(h) * G(v, l) * F(v.h) / (4 (n.v) (n.l))
 
 with F0 = 0.04 (1 - m) + m * albedo, alpha = roughness^2 (perceptual roughness r in [0, 1],
 clamped below at ``ALPHA_MIN``), D = GGX / Trowbridge-Reitz, G = **separable** Smith
@@ -25,6 +25,23 @@ albedo 1 the surface then returns exactly what it receives at every roughness, m
 angle (a white furnace gives 1, up to the table's 1e-3), and never more. Mitsuba's
 ``principled`` (the dev data) and NeRO do not weight the diffuse lobe; their dielectrics
 reflect up to 1.95x at grazing angles, and our dielectric renders are ~5 % darker than theirs.
+
+Diffuse lobe, two conventions (``DIFFUSE_MODELS``; ``W`` above):
+
+* ``"weighted"`` (default; stage 1, the project's path tracer, glTF's ``fresnel_mix``): the
+  energy weight above, ``W = diffuse_weight(n.v, r, n.l)``;
+* ``"principled"``: the diffuse lobe of Mitsuba 3's ``principled`` BSDF (Burley 2015, the
+  Disney BRDF fitted to measured materials; no retro-reflection split, flatness 0), which
+  rendered the dev scenes and the corpus: with F_x = (1 - n.x)^5, cos_d = l.h and
+  R_r = 2 r cos_d^2,
+
+      W = (1 - F_l / 2)(1 - F_v / 2) + R_r (F_l + F_v + F_l F_v (R_r - 1)),
+
+  not energy-weighted against the specular lobe (a dielectric of albedo 1 returns more than
+  it receives at grazing angles). Rendering the true mesh, material and map of the corpus's
+  oak table (roughness 0.55) through our estimator, the photos' object pixels are 1.08x the
+  "weighted" render and 1.01x the "principled" one (34.6 against 32.1 dB; docs/STAGE2.md).
+  Stage 2 fits with it on request (``material.render.diffuse``; not the default: see there).
 """
 
 from __future__ import annotations
@@ -44,6 +61,41 @@ from voxnero.render.microfacet import (
     specular_visibility,
 )
 from voxnero.render.splitsum import dielectric_albedo, dielectric_albedo_avg
+
+DIFFUSE_MODELS = ("weighted", "principled")
+"""The diffuse lobe's conventions (module docstring): energy-weighted Lambert, or the
+``principled`` (Disney 2015) diffuse with retro-reflection."""
+
+
+def check_diffuse(diffuse: str) -> str:
+    """``diffuse`` if it names a model of ``DIFFUSE_MODELS``, else a ``ConfigError``."""
+    if diffuse not in DIFFUSE_MODELS:
+        from voxnero.errors import ConfigError
+
+        raise ConfigError(f"unknown diffuse model {diffuse!r}",
+                          fix=f"use one of {', '.join(DIFFUSE_MODELS)}")
+    return diffuse
+
+
+def principled_diffuse(n_dot_v: Tensor, n_dot_l: Tensor, l_dot_h: Tensor, roughness: Tensor
+                       ) -> Tensor:
+    """The factor W of the ``principled`` diffuse lobe ``albedo / pi * W`` (module docstring).
+
+    Args:
+        n_dot_v, n_dot_l: (..., 1) cosines to the view and light directions (clamped to
+            [0, 1] here).
+        l_dot_h: (..., 1) cosine between the light direction and the half vector.
+        roughness: (..., 1) perceptual roughness r (not alpha).
+
+    Returns:
+        (..., 1) W >= 0: exactly 1 when both directions are normal; 0.25 when both graze a
+        smooth surface (r = 0); up to 6.25 toward the light at grazing on a rough one (r = 1,
+        v = l: the retro-reflection).
+    """
+    fv = (1.0 - n_dot_v.clamp(0.0, 1.0)) ** 5
+    fl = (1.0 - n_dot_l.clamp(0.0, 1.0)) ** 5
+    rr = 2.0 * roughness.clamp(0.0, 1.0) * l_dot_h.clamp(-1.0, 1.0) ** 2
+    return (1.0 - 0.5 * fl) * (1.0 - 0.5 * fv) + rr * (fl + fv + fl * fv * (rr - 1.0))
 
 
 def diffuse_weight(n_dot_v: Tensor, roughness: Tensor, n_dot_l: Tensor | None = None) -> Tensor:
@@ -74,12 +126,14 @@ def diffuse_weight(n_dot_v: Tensor, roughness: Tensor, n_dot_l: Tensor | None = 
 
 
 def brdf_eval(
-    n: Tensor, v: Tensor, l: Tensor, albedo: Tensor, metallic: Tensor, roughness: Tensor
+    n: Tensor, v: Tensor, l: Tensor, albedo: Tensor, metallic: Tensor, roughness: Tensor,
+    diffuse: str = "weighted",
 ) -> Tensor:
     """BRDF value f_r (per steradian, without the n.l cosine).
 
     f_r = (1 - m) W(v, l) albedo / pi + D G F / (4 n.v n.l), zero unless n.v > 0 and n.l > 0,
-    with the reciprocal energy weight W = ``diffuse_weight(n.v, r, n.l)``.
+    with W the reciprocal energy weight ``diffuse_weight(n.v, r, n.l)`` ("weighted") or the
+    ``principled`` diffuse factor (:func:`principled_diffuse`).
     Direction inputs are re-normalised (zero-length vectors give 0), so slightly non-unit
     inputs are fine.
 
@@ -90,6 +144,7 @@ def brdf_eval(
         albedo: (..., 3) linear base colour.
         metallic: (..., 1) metalness in [0, 1].
         roughness: (..., 1) perceptual roughness r (alpha = r^2, clamped at ALPHA_MIN).
+        diffuse: the diffuse lobe's convention, one of ``DIFFUSE_MODELS``.
 
     Returns:
         (..., 3) f_r, linear, 1/sr.
@@ -104,6 +159,10 @@ def brdf_eval(
     sin2_h = dot(torch.linalg.cross(n, h, dim=-1), torch.linalg.cross(n, h, dim=-1))
     spec = ggx_D(nh, alpha, sin2_h) * specular_visibility(nv, nl, alpha)
     spec = spec * fresnel_schlick(f0_from(albedo, metallic), vh)
-    diffuse = (1.0 - metallic) * diffuse_weight(nv, roughness, nl) * albedo / math.pi
+    if diffuse == "principled":
+        w = principled_diffuse(nv, nl, dot(l, h), roughness)
+    else:
+        w = diffuse_weight(nv, roughness, nl)
+    diff = (1.0 - metallic) * w * albedo / math.pi
     upper = (nv > 0) & (nl > 0)
-    return torch.where(upper, diffuse + spec, torch.zeros_like(spec))
+    return torch.where(upper, diff + spec, torch.zeros_like(spec))

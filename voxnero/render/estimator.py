@@ -223,6 +223,7 @@ def shade_mc(
     spawn: Spawn | None = None,
     one_sample: bool = False,
     shares: Tensor | None = None,
+    diffuse: str = "weighted",
 ) -> Tensor:
     """Outgoing radiance toward v at surface points by MIS Monte Carlo.
 
@@ -257,6 +258,7 @@ def shade_mc(
             branch (traced bounces).
         shares: with ``one_sample``, optional (N, 3) shares of the strategies per point
             (:func:`sample_one`).
+        diffuse: the BRDF's diffuse convention (``brdf.DIFFUSE_MODELS``).
 
     Returns:
         (N, 3) linear radiance.
@@ -308,5 +310,5 @@ def shade_mc(
                 li = li.index_put((occl,), val)
     f = brdf_eval(n.repeat_interleave(S, 0), v.repeat_interleave(S, 0), lf,
                   albedo.repeat_interleave(S, 0), metallic.repeat_interleave(S, 0),
-                  roughness.repeat_interleave(S, 0))
+                  roughness.repeat_interleave(S, 0), diffuse)
     return (f * li * scale[:, None]).view(N, S, 3).sum(1)
