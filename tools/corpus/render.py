@@ -44,26 +44,51 @@ class Part:
     vertices: np.ndarray
     triangles: np.ndarray
     normals: np.ndarray
-    base_color: tuple[float, float, float]
-    metallic: float
-    roughness: float
+    base_color: tuple[float, float, float] | np.ndarray
+    metallic: float | np.ndarray
+    roughness: float | np.ndarray
+    """Each either one value for the part or one per vertex (``(V, 3)``, ``(V,)``, ``(V,)``),
+    interpolated over the triangles (how an exported asset's material is rendered)."""
+
+    def per_vertex(self) -> dict[str, np.ndarray]:
+        """The parameters given per vertex, as Mitsuba mesh attributes ``vertex_<name>``."""
+        out = {}
+        for key, val, ch in (("base_color", self.base_color, 3), ("metallic", self.metallic, 1),
+                             ("roughness", self.roughness, 1)):
+            a = np.asarray(val, np.float32)
+            if a.ndim > 0 and a.shape[0] == len(self.vertices) and a.size != ch:
+                out[key] = a.reshape(len(self.vertices), ch)
+        return out
 
 
 def _mesh(mi, part: Part, name: str):
-    """A ``mitsuba.Mesh`` from numpy arrays (vertex normals kept: smooth shading)."""
+    """A ``mitsuba.Mesh`` from numpy arrays (vertex normals kept: smooth shading; per-vertex
+    material parameters as ``vertex_*`` attributes)."""
     m = mi.Mesh(name, len(part.vertices), len(part.triangles), has_vertex_normals=True)
     p = mi.traverse(m)
     p["vertex_positions"] = mi.Float(np.ascontiguousarray(part.vertices, np.float32).ravel())
     p["faces"] = mi.UInt32(np.ascontiguousarray(part.triangles, np.uint32).ravel())
     p["vertex_normals"] = mi.Float(np.ascontiguousarray(part.normals, np.float32).ravel())
     p.update()
+    for key, a in part.per_vertex().items():
+        m.add_attribute(f"vertex_{key}", a.shape[1], mi.Float(np.ascontiguousarray(a).ravel()))
     return m
 
 
 def _bsdf(part: Part) -> dict:
+    varying = part.per_vertex()
+
+    def value(key: str, v):
+        if key in varying:
+            return {"type": "mesh_attribute", "name": f"vertex_{key}"}
+        if key == "base_color":
+            return {"type": "rgb", "value": [float(c) for c in v]}
+        return float(v)
+
     return {"type": "twosided", "material": {
-        "type": "principled", "base_color": {"type": "rgb", "value": list(part.base_color)},
-        "metallic": float(part.metallic), "roughness": float(part.roughness),
+        "type": "principled", "base_color": value("base_color", part.base_color),
+        "metallic": value("metallic", part.metallic),
+        "roughness": value("roughness", part.roughness),
         "specular": 0.5, "spec_tint": 0.0, "anisotropic": 0.0, "sheen": 0.0,
         "clearcoat": 0.0, "spec_trans": 0.0}}
 
