@@ -42,7 +42,11 @@ class FieldConfig:
     smooth: float = 0.05
     """Weight of the smoothness regulariser (mean squared difference of neighbours)."""
     init_albedo: float = 0.5
-    init_metallic: float = 0.5
+    init_metallic: float = 0.0
+    """Start of metalness. 0: every surface starts a dielectric and a metal climbs (the copper
+    half of the corpus bunny reaches 0.94, the chrome knot 0.99). From 0.5, the ridge between the
+    two, rough dielectrics under an uncertain light fell to the metal side (chair, duck:
+    metallic 1, roughness 0.85-0.89, 12-13 dB lost in the Mitsuba relight check; session 18)."""
     init_roughness: float = 0.4
     residual_l2: float = 1e-3
     """Weight of the L2 penalty on the spatial residual (raw units) over the global base."""
@@ -141,16 +145,16 @@ class RenderConfig:
     jitter: bool = True
     """Training renders each object pixel through a random point of its footprint, re-cast on
     the mesh (the photos are box-filtered over the pixel); False shades the cached centre hit."""
-    diffuse: Literal["weighted", "principled"] = "weighted"
-    """The BRDF's diffuse lobe (``voxnero.render.brdf``): "weighted" = Lambert energy-weighted
-    under the specular interface (glTF's ``fresnel_mix``, stage 1's); "principled" = the Disney
-    diffuse with retro-reflection of Mitsuba's ``principled`` BSDF, which rendered the dev
-    scenes and the corpus. With the TRUE mesh, material and map the photos are 1.01x our
-    "principled" render and 1.08x the "weighted" one (oak table), but fitted from the
-    background's start the "principled" lobe lets rough dielectrics turn into rough metals
-    (chair, duck: metallic 1, roughness 0.85-0.89), so it is not the default (docs/STAGE2.md,
-    session 18). Written to the asset's sidecar, so that ``voxnero relight`` and ``voxnero
-    eval`` render the asset as it was fitted."""
+    diffuse: Literal["principled", "weighted"] = "principled"
+    """The BRDF's diffuse lobe (``voxnero.render.brdf``): "principled" = the Disney diffuse with
+    retro-reflection of Mitsuba's ``principled`` BSDF (Burley's fit to measured materials),
+    which rendered the dev scenes and the corpus; "weighted" = Lambert energy-weighted under
+    the specular interface (glTF's ``fresnel_mix``, stage 1's). With the TRUE mesh, material
+    and map the photos are 1.01x our "principled" render and 1.08x the "weighted" one (oak
+    table). Together with ``field.init_metallic`` = 0 it narrows the Mitsuba relight gap of the
+    dielectrics (table 8.97 -> 7.23 dB, chair 5.97 -> 4.14, duck 1.97 -> 1.38; metals within
+    0.2 dB; docs/STAGE2.md, session 18). Written to the asset's sidecar, so that ``voxnero
+    relight`` and ``voxnero eval`` render the asset as it was fitted."""
 
 
 @dataclass

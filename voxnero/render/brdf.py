@@ -41,7 +41,8 @@ Diffuse lobe, two conventions (``DIFFUSE_MODELS``; ``W`` above):
   it receives at grazing angles). Rendering the true mesh, material and map of the corpus's
   oak table (roughness 0.55) through our estimator, the photos' object pixels are 1.08x the
   "weighted" render and 1.01x the "principled" one (34.6 against 32.1 dB; docs/STAGE2.md).
-  Stage 2 fits with it on request (``material.render.diffuse``; not the default: see there).
+  Stage 2 fits with it by default (``material.render.diffuse``); stage 1 and the project's
+  own path tracer (``voxnero synth``) keep "weighted".
 """
 
 from __future__ import annotations
