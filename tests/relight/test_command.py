@@ -37,9 +37,12 @@ def test_relight_glb_writes_png_exr_and_config(sphere_asset_files, env_file, tmp
     for name in ("orbit_000", "orbit_001"):
         lin = read_exr(out / "exr" / f"{name}.exr")[..., :3]
         png = read_image(out / f"{name}.png")[..., :3]
-        # PNG = round(255 sRGB(clip(L))) of the EXR, exactly like the dev data
+        # PNG = round(255 sRGB(clip(L))) of the EXR, exactly like the dev data; a value within
+        # float rounding of a half level may land on either side (seen once in ~1700 values)
         expect = np.round(255 * np.asarray(linear_to_srgb(np.clip(lin, 0, 1)))) / 255
-        np.testing.assert_allclose(png, expect, atol=0.5 / 255 + 1e-6)
+        diff = np.abs(png - expect)
+        assert diff.max() <= 1 / 255 + 1e-6
+        assert (diff > 0.5 / 255 + 1e-6).mean() < 0.002
         assert lin.shape == (24, 24, 3) and np.isfinite(lin).all()
     cfg = (out / "config.yaml").read_text()
     assert "relight:" in cfg and "spp: 4" in cfg
