@@ -41,21 +41,32 @@ N_TRAIN, N_TEST = 96, 16
 DEFAULT_SHARED = REPO.parent / "shared" / "data"
 
 
+def split_parts(vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray,
+                materials: list, split_z: float | None) -> list[render.Part]:
+    """A mesh cut into one :class:`render.Part` per material by face-centroid height: the first
+    material at or below ``split_z``, the second above (one part when ``split_z`` is None).
+    ``materials`` hold ``base_color``, ``metallic``, ``roughness`` as attributes or keys."""
+    def get(m, k):
+        return m[k] if isinstance(m, dict) else getattr(m, k)
+
+    def part(v, f, n, m):
+        return render.Part(v, f, n, tuple(get(m, "base_color")), get(m, "metallic"),
+                           get(m, "roughness"))
+
+    if split_z is None or len(materials) == 1:
+        return [part(vertices, triangles, normals, materials[0])]
+    below = vertices[triangles].mean(axis=1)[:, 2] <= split_z
+    out = []
+    for m, sel in zip(materials, (below, ~below), strict=True):
+        used, inv = np.unique(triangles[sel], return_inverse=True)
+        out.append(part(vertices[used], inv.reshape(-1, 3), normals[used], m))
+    return out
+
+
 def _parts(spec: SceneSpec, mesh: shapes.Mesh) -> list[render.Part]:
     """The mesh cut into one :class:`render.Part` per material (by face-centroid height)."""
-    if spec.split_z is None:
-        m = spec.materials[0]
-        return [render.Part(mesh.vertices, mesh.triangles, mesh.normals, m.base_color,
-                            m.metallic, m.roughness)]
-    centroid_z = mesh.vertices[mesh.triangles].mean(axis=1)[:, 2]
-    out = []
-    below = centroid_z <= spec.split_z
-    for m, sel in zip(spec.materials, (below, ~below), strict=True):
-        tri = mesh.triangles[sel]
-        used, inv = np.unique(tri, return_inverse=True)
-        out.append(render.Part(mesh.vertices[used], inv.reshape(-1, 3), mesh.normals[used],
-                               m.base_color, m.metallic, m.roughness))
-    return out
+    return split_parts(mesh.vertices, mesh.triangles, mesh.normals, list(spec.materials),
+                       spec.split_z)
 
 
 def material_maps(spec: SceneSpec, position: np.ndarray, coverage: np.ndarray

@@ -38,27 +38,15 @@ def _gt_parts(root: Path):
     """The true mesh cut into material parts as the corpus build rendered it."""
     import open3d as o3d
 
-    from tools.corpus.render import Part
+    from tools.corpus.build import split_parts
 
     mesh = o3d.io.read_triangle_mesh(str(root / "gt" / "mesh.ply"))
     if not mesh.has_vertex_normals():
         mesh.compute_vertex_normals()
-    v = np.asarray(mesh.vertices)
-    f = np.asarray(mesh.triangles)
-    n = np.asarray(mesh.vertex_normals)
     doc = json.loads((root / "gt" / "material.json").read_text())
-    mats = doc.get("materials") or [doc["material"]]
-    split = doc.get("split_z")
-    if split is None or len(mats) == 1:
-        m = mats[0]
-        return [Part(v, f, n, tuple(m["base_color"]), m["metallic"], m["roughness"])]
-    below = v[f].mean(axis=1)[:, 2] <= split
-    out = []
-    for m, sel in zip(mats, (below, ~below), strict=True):
-        used, inv = np.unique(f[sel], return_inverse=True)
-        out.append(Part(v[used], inv.reshape(-1, 3), n[used], tuple(m["base_color"]),
-                        m["metallic"], m["roughness"]))
-    return out
+    return split_parts(np.asarray(mesh.vertices), np.asarray(mesh.triangles),
+                       np.asarray(mesh.vertex_normals), doc.get("materials") or [doc["material"]],
+                       doc.get("split_z"))
 
 
 def _asset_parts(glb: Path):
