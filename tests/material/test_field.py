@@ -4,12 +4,19 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.material.stage2_scene import sphere_geometry
-from voxnero.material.field import GridMaterial, VertexMaterial, activate, vertex_materials
+from voxnero.material.field import (
+    GridMaterial,
+    VertexMaterial,
+    activate,
+    edge_penalty,
+    vertex_materials,
+)
 from voxnero.render.brdf import brdf_eval
 from voxnero.render.microfacet import ALPHA_MIN, ROUGHNESS_MIN
 
@@ -61,6 +68,43 @@ def test_grid_smoothness_closed_form():
     # one of the 3 x-differences per row is the step; mean over 4*4*3 x-pairs
     want = step**2 * (16 / 48)
     assert torch.allclose(f.smoothness(), want, rtol=1e-5)
+
+
+def test_grid_total_variation_closed_form():
+    """The "l1" norm of the same step: Charbonnier sqrt(J² + eps²) − eps of the RAW step on the
+    crossing pairs, whatever the base (saturating the sigmoid cannot lower it)."""
+    f = GridMaterial(res=4)
+    with torch.no_grad():
+        f.base.zero_()
+        f.grid[0, 0, :, :, 2:] = 0.7
+    want = torch.tensor((math.sqrt(0.7**2 + 1e-6) - 1e-3) * (16 / 48))
+    assert torch.allclose(f.smoothness(norm="l1"), want, rtol=1e-5)
+    with torch.no_grad():
+        f.base.fill_(8.0)  # every channel deep in the sigmoid's tail
+    assert torch.allclose(f.smoothness(norm="l1"), want, rtol=1e-5)
+    assert float(f.smoothness(norm="l2")) < 1e-6 * float(want)
+
+
+@settings(max_examples=30, deadline=None)
+@given(jump=st.floats(0.05, 0.9), n=st.integers(2, 50))
+def test_total_variation_charges_a_ramp_like_a_step_and_squares_do_not(jump, n):
+    """A ramp of height J in n equal steps: "l1" costs ~J (as the single step), "l2" J²/n.
+    This is why "l1" does not let a slow albedo ramp imitate shading for free."""
+    d_ramp = torch.zeros(n, 5)
+    d_ramp[:, 0] = jump / n
+    d_step = torch.zeros(1, 5)
+    d_step[0, 0] = jump
+    l1_ramp, l1_step = edge_penalty(d_ramp, "l1").sum(), edge_penalty(d_step, "l1").sum()
+    l2_ramp, l2_step = edge_penalty(d_ramp, "l2").sum(), edge_penalty(d_step, "l2").sum()
+    assert abs(float(l1_ramp) - jump) < n * 1e-3 + 1e-6
+    assert abs(float(l1_step) - jump) < 1e-3
+    assert math.isclose(float(l2_ramp), jump**2 / n, rel_tol=1e-4)
+    assert math.isclose(float(l2_step), jump**2, rel_tol=1e-5)
+
+
+def test_edge_penalty_names_an_unknown_norm():
+    with pytest.raises(ValueError, match="l1"):
+        edge_penalty(torch.zeros(2, 5), "huber")
 
 
 def test_activation_ranges_and_vertex_export():

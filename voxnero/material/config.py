@@ -35,12 +35,21 @@ class FieldConfig:
         "range_prior": WEIGHT}
 
     kind: Literal["vertex", "grid"] = "vertex"
-    """vertex: parameters per mesh vertex, barycentric interpolation, edge-Laplacian smoothness;
-    grid: dense trilinear grid over the unit cube, total-variation smoothness."""
+    """vertex: parameters per mesh vertex, barycentric interpolation, smoothness over mesh edges;
+    grid: dense trilinear grid over the unit cube, smoothness over neighbouring cells."""
     grid_res: int = 48
     """Grid resolution (kind: grid)."""
     smooth: float = 0.05
-    """Weight of the smoothness regulariser (mean squared difference of neighbours)."""
+    """Weight of the smoothness regulariser (mean penalty of neighbour differences)."""
+    smooth_norm: Literal["l2", "l1"] = "l1"
+    """How the smoothness measures a neighbour difference (``voxnero.material.field``).
+    "l1" (total variation of the raw values): a material that changes pays per edge crossed,
+    however slowly it ramps, so the albedo can no longer imitate shading the light gets wrong
+    (the table's 8-bit photos clip its ceiling panels: its albedo grew 20-30 % on the faces they
+    light and the Mitsuba relight gap was 7.2 / 4.1 dB; 3.0 / 1.8 with "l1" at 0.05). At 0.2 the
+    table reaches 1.5 / 0.9 dB but the two-material bunny's halves merge (5.3 -> 10.2 dB); 0.05
+    leaves it at 5.3 (docs/BENCHMARKS.md session 19). "l2" (until session 19): squares of the
+    activated values, under which a slow ramp over n edges costs J²/n."""
     init_albedo: float = 0.5
     init_metallic: float = 0.0
     """Start of metalness. 0: every surface starts a dielectric and a metal climbs (the copper

@@ -3,10 +3,20 @@
 Two explicit parameterisations (``material.field.kind``):
 
 * ``vertex``: 5 raw values per mesh vertex, interpolated barycentrically at a hit; smoothness is
-  the mean squared difference of the activated values across mesh edges.
+  a mean over mesh edges of the difference of neighbouring values.
 * ``grid``: a dense ``R³`` grid of raw values over the unit cube ``[-1, 1]³``, trilinear
-  (``grid_sample``, ``align_corners=True``); smoothness is the mean squared difference of
-  neighbouring cells (total variation, squared).
+  (``grid_sample``, ``align_corners=True``); smoothness is the same mean over neighbouring cells.
+
+The difference ``d`` of two neighbours (5 values) is measured by ``SMOOTH_NORMS``:
+
+* ``"l2"``: ``|d|²`` of the activated values (quadratic: a slow ramp over n edges costs J²/n,
+  next to nothing on a fine mesh);
+* ``"l1"``: ``sqrt(|d|² + eps²) − eps`` of the RAW values (total variation, Charbonnier-smoothed:
+  a ramp and a step of the same height J cost the same J per crossing, so materials come out
+  piecewise constant and a ramp that only imitates shading is not free; see
+  ``FieldConfig.smooth_norm``). Raw, not activated: the total variation of sigmoid outputs falls
+  when the values saturate, and with it the roughness of a whole object was driven to its floor
+  (weight 0.5: table 0.55 -> 0.035; docs/STAGE2.md).
 
 Both are a **global base** (5 raw values shared by the whole surface) plus a spatial residual
 (initialised to 0, kept small by an L2 penalty). Every pixel of every batch trains the base, so a
@@ -27,6 +37,29 @@ from torch import Tensor, nn
 
 from voxnero.material.surface import Geometry
 from voxnero.render.microfacet import raw_from_roughness, roughness_from_raw
+
+SMOOTH_NORMS = ("l2", "l1")
+"""How the smoothness measures the difference of two neighbours (see the module docstring)."""
+_TV_EPS = 1e-3
+"""Charbonnier epsilon of the ``"l1"`` norm (raw units)."""
+
+
+def edge_penalty(d: Tensor, norm: str) -> Tensor:
+    """Per-pair penalty of neighbour differences.
+
+    Args:
+        d: (..., 5) differences between neighbours, along the last dim.
+        norm: one of ``SMOOTH_NORMS``.
+
+    Returns:
+        (...) penalty: ``|d|²`` ("l2") or ``sqrt(|d|² + eps²) − eps`` ("l1").
+    """
+    sq = (d**2).sum(-1)
+    if norm == "l2":
+        return sq
+    if norm == "l1":
+        return torch.sqrt(sq + _TV_EPS**2) - _TV_EPS
+    raise ValueError(f"unknown smoothness norm {norm!r}; expected one of {SMOOTH_NORMS}")
 
 
 def _logit(p: float) -> float:
@@ -90,14 +123,15 @@ class VertexMaterial(nn.Module):
         """Mean squared residual (keeps the spatial part small where data is weak)."""
         return (self.residual**2).mean()
 
-    def smoothness(self, sample: int = 65536, generator: torch.Generator | None = None
-                   ) -> Tensor:
-        """Mean over (a random subset of) edges of the squared difference of activated values."""
+    def smoothness(self, sample: int = 65536, generator: torch.Generator | None = None,
+                   norm: str = "l2") -> Tensor:
+        """Mean over (a random subset of) edges of :func:`edge_penalty` (activated values for
+        "l2", raw for "l1")."""
         e = self.edges
         if sample and e.shape[0] > sample:
             e = e[torch.randint(0, e.shape[0], (sample,), generator=generator).to(e.device)]
-        s = activated(self.raw)
-        return ((s[e[:, 0]] - s[e[:, 1]]) ** 2).sum(-1).mean()
+        s = self.raw if norm == "l1" else activated(self.raw)
+        return edge_penalty(s[e[:, 0]] - s[e[:, 1]], norm).mean()
 
 
 class GridMaterial(nn.Module):
@@ -131,11 +165,15 @@ class GridMaterial(nn.Module):
         """Material at surface points ``x`` (N, 3); tri/bary unused. Returns as VertexMaterial."""
         return activate(self.raw_at(x))
 
-    def smoothness(self, sample: int = 0, generator: torch.Generator | None = None) -> Tensor:
-        """Mean squared difference of neighbouring activated cells along each axis."""
-        s = activated((self.grid + self.base.view(1, 5, 1, 1, 1)).movedim(1, -1)).movedim(-1, 1)
-        return sum(((s.narrow(d, 1, s.shape[d] - 1) - s.narrow(d, 0, s.shape[d] - 1)) ** 2)
-                   .sum(1).mean() for d in (2, 3, 4))
+    def smoothness(self, sample: int = 0, generator: torch.Generator | None = None,
+                   norm: str = "l2") -> Tensor:
+        """Sum over the three axes of the mean :func:`edge_penalty` of neighbouring cells
+        (activated values for "l2", raw for "l1"; ``sample`` and ``generator`` unused)."""
+        s = (self.grid + self.base.view(1, 5, 1, 1, 1)).movedim(1, -1)
+        if norm != "l1":
+            s = activated(s)
+        return sum(edge_penalty(s.narrow(d, 1, s.shape[d] - 1) - s.narrow(d, 0, s.shape[d] - 1),
+                                norm).mean() for d in (1, 2, 3))
 
 
 def make_field(kind: str, geom: Geometry, grid_res: int, albedo: float, metallic: float,

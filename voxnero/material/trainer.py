@@ -283,7 +283,8 @@ class MaterialTrainer:
             terms["background"] = ((srgb_clipped(bg) - linear_to_srgb(c.bg_rgb[j])) ** 2).mean()
         fc = cfg.field
         if fc.smooth:
-            terms["smooth"] = fc.smooth * self.field.smoothness(generator=self.gen)
+            terms["smooth"] = fc.smooth * self.field.smoothness(generator=self.gen,
+                                                                 norm=fc.smooth_norm)
         if fc.residual_l2:
             terms["residual"] = fc.residual_l2 * self.field.residual_penalty()
         if fc.range_prior:
