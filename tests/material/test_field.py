@@ -15,7 +15,7 @@ from voxnero.material.field import (
     VertexMaterial,
     activate,
     edge_penalty,
-    vertex_materials,
+    surface_materials,
 )
 from voxnero.render.brdf import brdf_eval
 from voxnero.render.microfacet import ALPHA_MIN, ROUGHNESS_MIN
@@ -113,7 +113,9 @@ def test_activation_ranges_and_vertex_export():
     assert a.min() >= 0 and a.max() <= 1 and m.item() < 1e-6 and r.item() > 1 - 1e-6
     geom = sphere_geometry(0.5, 8)
     for f in (VertexMaterial(geom, 0.4, 0.1, 0.6), GridMaterial(8, 0.4, 0.1, 0.6)):
-        a, m, r = vertex_materials(f, geom)
+        vid, tris, a, m, r = surface_materials(f, geom)
+        assert torch.equal(vid, torch.arange(geom.n_vertices))
+        assert torch.equal(tris, geom.triangles.long())
         assert a.shape == (geom.n_vertices, 3) and m.shape == (geom.n_vertices, 1)
         assert torch.allclose(r, torch.full_like(r, 0.6), atol=1e-5)
 

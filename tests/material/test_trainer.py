@@ -8,7 +8,7 @@ import torch
 from tests.material.stage2_scene import ring_cameras, smooth_env, sphere_geometry
 from voxnero.material.config import MaterialConfig
 from voxnero.material.evaluate import render_view
-from voxnero.material.field import GridMaterial, VertexMaterial
+from voxnero.material.field import GridMaterial, VertexMaterial, activate
 from voxnero.material.render import Strategies, env_sampler, shade
 from voxnero.material.surface import build_cache
 from voxnero.material.trainer import (
@@ -19,6 +19,7 @@ from voxnero.material.trainer import (
     decorrelated_loss,
 )
 from voxnero.render.latlong import envmap_lookup
+from voxnero.render.microfacet import raw_from_roughness
 
 TRUE = {"albedo": (0.9, 0.6, 0.3), "metallic": 1.0, "roughness": 0.25}
 
@@ -60,6 +61,7 @@ def test_recovers_albedo_metallic_roughness_with_known_geometry_and_light():
         geom, env, cache = _scene()
         cfg = _cfg(350)
         cfg.field.kind = "vertex"  # the default field: global base + per-vertex residual
+        cfg.field.race_steps = 40  # the metalness race (metal must win it)
         tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)
         tr.fit(progress=False)
         a, m, r = tr.field(cache.tri, cache.bary, cache.x)
@@ -248,7 +250,7 @@ def test_hold_brdf_keeps_metallic_and_roughness_until_the_loss_is_linearised():
         geom, env, cache = _scene(n_views=2, size=16, spp=(4, 4, 4))
         for hold in (True, False):
             cfg = _cfg(8)
-            cfg.field.kind = "vertex"
+            cfg.field.kind, cfg.field.metal = "vertex", "free"  # no race holding metalness
             cfg.render.linearise_after, cfg.render.hold_brdf = 0.5, hold
             tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)
             start = [p.detach().clone() for p in (tr.field.base, tr.field.residual)]
@@ -307,6 +309,7 @@ def test_total_variation_keeps_a_uniform_albedo_from_imitating_an_unseen_light()
             cfg = MaterialConfig(iters=400, batch=384, bg_batch=256, log_every=10**6,
                                  checkpoint_every=0)
             cfg.field.smooth, cfg.field.smooth_norm = w, norm
+            cfg.field.regions, cfg.field.metal = "one", "free"  # the smoothness alone
             cfg.render.spp_cos, cfg.render.spp_ggx, cfg.render.spp_env = 4, 4, 4
             cfg.light.env_height = [16]
             cfg.render.jitter = False
@@ -322,3 +325,145 @@ def test_total_variation_keeps_a_uniform_albedo_from_imitating_an_unseen_light()
         assert out["l1"][1] < out["l2"][1], out
     finally:
         torch.set_num_threads(old)
+
+
+def _two_material_scene():
+    """A sphere with a copper-like metal top (z > 0; roughness 0.25) and a terracotta-like rough
+    dielectric bottom (roughness 0.7), the corpus bunny's pair, under the smooth known map."""
+    geom = sphere_geometry(0.5, 30)
+    env = smooth_env(32)
+    cams = ring_cameras(8, 40)
+    cache = build_cache(geom, torch.zeros(8, 40, 40, 3), cams, max_pixels=0)
+    top = geom.vertices[:, 2] > 0
+    truth = VertexMaterial(geom)
+    with torch.no_grad():
+        truth.base.zero_()
+        metal = torch.logit(torch.tensor([0.95, 0.64, 0.54, 0.9999, 0.0]))
+        terra = torch.logit(torch.tensor([0.55, 0.22, 0.12, 0.0001, 0.0]))
+        metal[4], terra[4] = raw_from_roughness(0.25), raw_from_roughness(0.7)
+        truth.residual.copy_(torch.where(top[:, None], metal, terra))
+        tgt = shade(geom, truth, env, cache.tri, cache.bary, cache.x, cache.n, cache.v,
+                    Strategies(64, 64, 128), env=env_sampler(env),
+                    generator=torch.Generator().manual_seed(7), diffuse="principled")
+    cache.rgb = tgt.clamp(0, 1)
+    cache.bg_rgb = envmap_lookup(env, cache.bg_dirs).clamp(0, 1)
+    return geom, env, cache, top
+
+
+def test_two_materials_are_found_and_each_gets_its_metalness_from_the_race():
+    """The two-means split finds the two halves and the race holds the top metal and the
+    bottom dielectric (known map, so the test is about the decision, not the light)."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        geom, env, cache, top = _two_material_scene()
+        cfg = _cfg(200)
+        cfg.field.kind = "vertex"
+        cfg.field.split_at, cfg.field.race_steps = 0.4, 30
+        cfg.render.diffuse = "principled"
+        lines = []
+        tr = MaterialTrainer(cfg, geom, cache, log=lines.append, env_init=env)
+        tr.fit(progress=False)
+        reg = tr.decisions["material_regions"]
+        assert reg["regions"] == 2, reg
+        f = tr.field
+        # the split follows the equator: each region is (almost) one half
+        agree = float((f.region.bool() == top).float().mean())
+        assert max(agree, 1 - agree) > 0.9, agree
+        metal_region = int(f.region[top].float().mean() > 0.5)
+        held = tr.decisions["metal"]["held"]
+        assert held[metal_region] == 1.0 and held[1 - metal_region] == 0.0, held
+        assert len(tr.decisions["metal"]["candidates"]) == 4
+        assert any("metalness race" in s for s in lines)
+        _, m, _ = activate(f.raw)
+        assert float(m[top].median()) > 0.99 and float(m[~top].median()) < 0.01
+    finally:
+        torch.set_num_threads(old)
+
+
+def test_checkpoint_resume_continues_identically_through_the_metalness_race(tmp_path):
+    """A run stopped after the race (vertex field, split and race at step 3) and resumed from
+    its checkpoint ends where the uninterrupted run ends, with the same metalness held."""
+    geom, env, cache, _ = _two_material_scene()
+    cfg = _cfg(12)
+    cfg.field.kind = "vertex"
+    cfg.field.split_at, cfg.field.race_steps, cfg.field.split_distance = 0.25, 2, 0.0
+    a = MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)
+    a.fit(progress=False)
+    assert a.field.split_done and a.field.metal_held
+    ck = tmp_path / "checkpoint.pt"
+    b = MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)
+    while b.step < 7:
+        b.train_step()
+    assert b.field.metal_held
+    b.save(ck)
+    c = MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)
+    c.fit(ck, progress=False)
+    assert c.step == 12
+    assert torch.equal(c.field.region, a.field.region)
+    assert torch.equal(c.field.metal_fixed, a.field.metal_fixed)
+    for p, q in zip(c.field.parameters(), a.field.parameters(), strict=True):
+        assert torch.allclose(p, q, atol=1e-6)
+
+
+def test_relabel_boundary_moves_a_misplaced_material_boundary_to_the_photos():
+    """Two uniform materials (the true ones) with their boundary put too high (z > 0.1 instead
+    of the equator): each pass flips the triangles along it that the photos say belong to the
+    other material, until the triangles clearly on one side are all right."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        geom, env, cache, top = _two_material_scene()
+        cfg = _cfg(10)
+        cfg.field.kind, cfg.field.metal = "vertex", "free"
+        cfg.render.diffuse = "principled"
+        tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)
+        f = tr.field
+        wrong = (geom.vertices[:, 2] > 0.1).long()
+        metal = torch.logit(torch.tensor([0.95, 0.64, 0.54, 0.9999, 0.0]))
+        terra = torch.logit(torch.tensor([0.55, 0.22, 0.12, 0.0001, 0.0]))
+        metal[4], terra[4] = raw_from_roughness(0.25), raw_from_roughness(0.7)
+        f.split(wrong, 0.05)
+        with torch.no_grad():
+            f.base.copy_(terra)
+            f.shift.copy_((metal - terra)[None])
+            f.residual.zero_()
+        z = geom.vertices[geom.triangles.long()][..., 2]
+        sure_top, sure_bottom = (z > 0.02).all(1), (z < -0.02).all(1)
+
+        def errors():
+            fr = f.face_region
+            return int((fr[sure_top] == 0).sum() + (fr[sure_bottom] == 1).sum())
+
+        before = errors()
+        assert before > 30
+        seq = [before]
+        for _ in range(3):
+            changed, band = tr.relabel_boundary()
+            assert 0 <= changed <= band
+            seq.append(errors())
+        assert seq[-1] <= before // 10, seq
+    finally:
+        torch.set_num_threads(old)
+
+
+def test_smoothness_is_weak_until_the_materials_are_decided():
+    """``field.smooth_start`` before ``split_at`` × iters (so that two materials can show apart),
+    ``field.smooth`` from then on; with nothing to decide (one region, free metalness, or a grid
+    field) ``smooth`` throughout."""
+    geom, env, cache = _scene(2, 16, (2, 2, 2))
+    cfg = _cfg(100)
+    cfg.field.kind, cfg.field.smooth, cfg.field.smooth_start, cfg.field.split_at = \
+        "vertex", 0.2, 0.05, 0.3
+    tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)
+    seen = {}
+    for step in (0, 29, 30, 99):
+        tr.step = step
+        seen[step] = tr._smooth_weight()
+    assert seen == {0: 0.05, 29: 0.05, 30: 0.2, 99: 0.2}
+    cfg.field.regions, cfg.field.metal = "one", "free"
+    tr.step = 0
+    assert tr._smooth_weight() == 0.2
+    cfg.field.regions, cfg.field.metal, cfg.field.kind = "auto", "race", "grid"
+    assert MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)._smooth_weight() \
+        == 0.2

@@ -104,12 +104,12 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
     from voxnero.io.color import linear_to_srgb
     from voxnero.io.exr import read_envmap
     from voxnero.material.evaluate import evaluate_scene
-    from voxnero.material.field import vertex_materials
+    from voxnero.material.field import surface_materials
     from voxnero.material.render import Strategies
     from voxnero.material.summary import vertex_areas, write_summary
     from voxnero.material.surface import Geometry, build_cache
     from voxnero.material.trainer import MaterialTrainer
-    from voxnero.mesh.io import load_mesh
+    from voxnero.mesh.io import cut_mesh, load_mesh
     from voxnero.safety.fingerprint import file_digest, scene_digest
 
     out = run.staging
@@ -161,8 +161,8 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
     # ---- exports (input frame)
     t2 = time.perf_counter()
     env = trainer.env.image().detach().cpu()
-    a, m, r = (t.cpu() for t in vertex_materials(trainer.field, trainer.geom))
-    mesh_in = load_mesh(mesh_path)  # input frame, same vertex order
+    vid, tris, a, m, r = (t.cpu() for t in surface_materials(trainer.field, trainer.geom))
+    mesh_in = cut_mesh(load_mesh(mesh_path), vid.numpy(), tris.numpy())  # input frame
     tm = bake_textures(mesh_in, a.numpy(), m.numpy(), r.numpy(), cfg.texture_size)
     up = [float(x) for x in scene.up]
     write_glb(out / "model.glb", tm, sidecar={"scene_up": up, "scene": str(scene_path),
@@ -198,7 +198,7 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
         times["eval_s"] = time.perf_counter() - t3
     (out / "metrics.json").write_text(json.dumps(json_safe(metrics), indent=1, default=str,
                                                  allow_nan=False))
-    w = vertex_areas(geom.vertices.numpy().astype(np.float64), geom.triangles.numpy())
+    w = vertex_areas(np.asarray(mesh_in.vertices), np.asarray(mesh_in.triangles))
     write_summary(out / "materials.json", a.numpy(), m.numpy(), r.numpy(), w, env.numpy(),
                   extra={"decisions": trainer.decisions, "times": times, "metrics": metrics,
                          "mesh": str(mesh_path), "scene": str(scene_path)})

@@ -32,24 +32,33 @@ class FieldConfig:
     RANGES: ClassVar[dict[str, Range]] = {
         "grid_res": at_least(2, 1024), "smooth": WEIGHT, "init_albedo": FRACTION,
         "init_metallic": FRACTION, "init_roughness": FRACTION, "residual_l2": WEIGHT,
-        "range_prior": WEIGHT}
+        "range_prior": WEIGHT, "split_at": Range(0.0, 1.0), "split_distance": Range(0.0, 2.0),
+        "split_min_fraction": Range(0.0, 0.5), "split_metallic": Range(0.0, 1.0, lo_open=True),
+        "race_steps": at_least(1, BIG_COUNT), "smooth_start": WEIGHT, "relabel_at": FRACTION}
 
     kind: Literal["vertex", "grid"] = "vertex"
     """vertex: parameters per mesh vertex, barycentric interpolation, smoothness over mesh edges;
     grid: dense trilinear grid over the unit cube, smoothness over neighbouring cells."""
     grid_res: int = 48
     """Grid resolution (kind: grid)."""
-    smooth: float = 0.05
-    """Weight of the smoothness regulariser (mean penalty of neighbour differences)."""
+    smooth: float = 0.2
+    """Weight of the smoothness regulariser (mean penalty of neighbour differences), from the
+    materials' decision (``split_at``) on; ``smooth_start`` before it."""
+    smooth_start: float = 0.05
+    """The smoothness weight before ``split_at`` (kind: vertex, with ``regions`` = auto or
+    ``metal`` = race): weak enough that two materials show apart by then (the corpus bunny's
+    halves: 0.30 apart at 0.05, 0.10 at 0.2, where the split needs 0.25), after which each
+    material is held to piecewise constant by ``smooth`` with the boundary between them free."""
     smooth_norm: Literal["l2", "l1"] = "l1"
     """How the smoothness measures a neighbour difference (``voxnero.material.field``).
     "l1" (total variation of the raw values): a material that changes pays per edge crossed,
     however slowly it ramps, so the albedo can no longer imitate shading the light gets wrong
     (the table's 8-bit photos clip its ceiling panels: its albedo grew 20-30 % on the faces they
-    light and the Mitsuba relight gap was 7.2 / 4.1 dB; 3.0 / 1.8 with "l1" at 0.05). At 0.2 the
-    table reaches 1.5 / 0.9 dB but the two-material bunny's halves merge (5.3 -> 10.2 dB); 0.05
-    leaves it at 5.3 (docs/BENCHMARKS.md session 19). "l2" (until session 19): squares of the
-    activated values, under which a slow ramp over n edges costs J²/n."""
+    light and the Mitsuba relight gap was 7.2 / 4.1 dB; 3.0 / 1.8 with "l1" at 0.05, 1.5 / 0.9
+    at 0.2). Before the two-material split (session 20), 0.2 merged the corpus bunny's copper
+    and terracotta halves (5.3 -> 10.2 dB), so 0.05 was the default then (docs/BENCHMARKS.md
+    sessions 19, 20). "l2" (until session 19): squares of the activated values, under which a
+    slow ramp over n edges costs J²/n."""
     init_albedo: float = 0.5
     init_metallic: float = 0.0
     """Start of metalness. 0: every surface starts a dielectric and a metal climbs (the copper
@@ -61,6 +70,42 @@ class FieldConfig:
     """Weight of the L2 penalty on the spatial residual (raw units) over the global base."""
     range_prior: float = 1e-3
     """Weak pull of metallic toward 0 or 1 (m (1 − m)) and of every raw value toward 0."""
+    regions: Literal["auto", "one"] = "auto"
+    """One material or two (kind: vertex). "auto": at ``split_at`` of the steps the vertices'
+    albedo and roughness are split by two-means (:mod:`voxnero.material.regions`); if the two
+    centres lie ``split_distance`` apart and the smaller holds ``split_min_fraction`` of the
+    vertices, each gets its own base and both restart metalness at ``split_metallic``. Under
+    one shared base the corpus bunny's terracotta half followed its copper half into a rough
+    metal (metallic 0.96; docs/STAGE2.md, session 20). Logged and written to materials.json.
+    "one": never split."""
+    split_at: float = 0.15
+    """Fraction of ``iters`` at which ``regions`` and ``metal`` decide."""
+    split_distance: float = 0.25
+    """Distance of the two clusters' centres (activated albedo RGB and roughness, each in
+    [0, 1]) from which they are two materials."""
+    split_min_fraction: float = 0.1
+    """Share of the vertices the smaller cluster must hold."""
+    split_metallic: float = 0.05
+    """Metalness both materials restart from after a split when ``metal`` = free (the
+    dielectric side, as ``init_metallic``, but not so deep in the sigmoid that a metal cannot
+    climb back in the steps left)."""
+    metal: Literal["race", "free"] = "race"
+    """Metalness per material (kind: vertex). "race": at ``split_at``, every assignment of
+    dielectric / metal to the materials trains ``race_steps`` steps with it held; the lowest
+    object loss wins and stays held (0 or 1) for the rest of the run; logged with each
+    candidate's loss and written to materials.json. "free": learned per vertex as any channel
+    (the corpus bunny's terracotta half then followed the copper half into a rough metal and
+    climbed back from 0.05 after a split: the dielectric basin is better, 24.8 against 24.0 dB
+    on the training photos, but out of reach by gradient; docs/STAGE2.md, session 20)."""
+    relabel_at: list[float] = _field(default_factory=lambda: [0.5, 0.75])
+    """Fractions of ``iters`` at which the boundary of a split field is placed by the photos
+    (``MaterialTrainer.relabel_boundary``): each triangle along it takes the material that
+    renders its pixels better. The two-means labels put it where the learned values cross,
+    which on the corpus bunny cost 1.6 dB in the Mitsuba relight check against the true
+    boundary even with the true materials on both sides (docs/STAGE2.md, session 20)."""
+    race_steps: int = 150
+    """Steps each candidate of the metalness race trains (the winner's count toward
+    ``iters``; the others are the race's cost)."""
 
 
 @dataclass

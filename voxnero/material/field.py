@@ -22,9 +22,14 @@ Both are a **global base** (5 raw values shared by the whole surface) plus a spa
 (initialised to 0, kept small by an L2 penalty). Every pixel of every batch trains the base, so a
 uniform material converges in a few hundred steps, while each vertex / cell only sees the few
 pixels around it (measured on torus_ceramic: per-vertex values alone had moved metallic only from
-0.5 to 0.34 after 1000 steps). Raw values pass through a sigmoid: albedo in (0, 1)³, metallic in
-(0, 1), roughness r in (``microfacet.ROUGHNESS_MIN``, 1) (GGX alpha = r², see
-``voxnero.render.brdf``).
+0.5 to 0.34 after 1000 steps).
+
+The vertex field can hold two materials: :meth:`VertexMaterial.split` gives the vertices of the
+second a base of their own (``field.regions``, decided by :mod:`voxnero.material.regions`), and
+:meth:`VertexMaterial.hold_metal` fixes metalness per material (0 or 1; ``field.metal`` = race).
+
+Raw values pass through a sigmoid: albedo in (0, 1)³, metallic in (0, 1), roughness r in
+(``microfacet.ROUGHNESS_MIN``, 1) (GGX alpha = r², see ``voxnero.render.brdf``).
 """
 
 from __future__ import annotations
@@ -97,6 +102,14 @@ class VertexMaterial(nn.Module):
         self.geom = geom
         self.base = nn.Parameter(torch.tensor(_init_raw(albedo, metallic, roughness)))
         self.residual = nn.Parameter(torch.zeros(geom.n_vertices, 5))
+        # second material's base, as an offset from ``base`` (unused until :meth:`split`)
+        self.shift = nn.Parameter(torch.zeros(1, 5))
+        self.register_buffer("region", torch.zeros(geom.n_vertices, dtype=torch.long))
+        # material of each triangle after a split: the majority of its vertices' regions
+        self.register_buffer("face_region", torch.zeros(geom.triangles.shape[0],
+                                                        dtype=torch.long))
+        # metalness held per region (-1: learned freely), see hold_metal
+        self.register_buffer("metal_fixed", torch.full((2,), -1.0))
         f = geom.triangles
         e = torch.cat([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
         e = torch.unique(torch.sort(e, dim=1).values, dim=0)
@@ -112,12 +125,80 @@ class VertexMaterial(nn.Module):
         Returns:
             albedo (N, 3), metallic (N, 1), roughness (N, 1).
         """
-        return activate(self.base + self.geom.interpolate(self.residual, tri, bary))
+        raw = self.base + self.geom.interpolate(self.residual, tri, bary)
+        if self.split_done:  # each triangle is one material: the boundary stays sharp
+            raw = raw + self._shifts()[self.face_region[tri]]
+        return activate(raw)
+
+    def _shifts(self) -> Tensor:
+        """(2, 5) raw offset of each region's base from ``base`` (region 0: zero)."""
+        return torch.cat([torch.zeros_like(self.shift), self.shift])
+
+    def _offsets(self) -> Tensor:
+        """(V, 5) raw offsets from ``base``: the vertex's region shift + residual."""
+        if not self.split_done:
+            return self.residual
+        return self.residual + self._shifts()[self.region]
+
+    @property
+    def split_done(self) -> bool:
+        """Whether the surface was split into two materials (:meth:`split`)."""
+        return bool(self.region.any())
 
     @property
     def raw(self) -> Tensor:
-        """(V, 5) raw values at the vertices (base + residual)."""
-        return self.base + self.residual
+        """(V, 5) raw values at the vertices (base + region shift + residual)."""
+        return self.base + self._offsets()
+
+    @torch.no_grad()
+    def split(self, labels: Tensor, metallic_restart: float) -> None:
+        """Give the vertices of ``labels`` == 1 a base of their own and restart metalness.
+
+        The raw albedo and roughness do not change: each region's base becomes the median of
+        its vertices' values and the residuals are re-expressed around it (so the residual
+        penalty now pulls each vertex toward its own material, not toward a mix of the two).
+        Metalness restarts at ``metallic_restart`` everywhere (residuals 0): the shared base
+        had one value for both materials, which is what this corrects.
+
+        Args:
+            labels: (V,) long in {0, 1}.
+            metallic_restart: activated metallic both regions start from again, in (0, 1).
+        """
+        labels = labels.to(self.region.device)
+        c = [torch.median(self.residual[labels == k], 0).values for k in (0, 1)]
+        self.base += c[0]
+        self.shift.copy_((c[1] - c[0])[None])
+        self.residual -= torch.stack(c)[labels]
+        self.region.copy_(labels)
+        self.face_region.copy_((labels[self.geom.triangles].sum(1) >= 2).long())
+        self.base[3] = _logit(metallic_restart)
+        self.shift[:, 3] = 0.0
+        self.residual[:, 3] = 0.0
+
+    @torch.no_grad()
+    def hold_metal(self, values: tuple[float, ...]) -> None:
+        """Hold metalness at ``values`` (one per region: 0 dielectric, 1 metal) from now on;
+        :meth:`impose_metal` re-applies it after every optimiser step."""
+        self.metal_fixed.fill_(-1.0)
+        self.metal_fixed[: len(values)] = torch.tensor(values, dtype=self.metal_fixed.dtype)
+        self.impose_metal()
+
+    @property
+    def metal_held(self) -> bool:
+        """Whether metalness is held (:meth:`hold_metal`)."""
+        return bool(self.metal_fixed[0] >= 0)
+
+    @torch.no_grad()
+    def impose_metal(self) -> None:
+        """Set the raw metallic channel to the held values (no-op when none are held): the
+        activated value is 1e-4 from 0 or 1 (``_logit``'s clamp)."""
+        if not self.metal_held:
+            return
+        held = [float(v) for v in self.metal_fixed]
+        self.base[3] = _logit(held[0])
+        if self.split_done and held[1] >= 0:
+            self.shift[0, 3] = _logit(held[1]) - _logit(held[0])
+        self.residual[:, 3] = 0.0
 
     def residual_penalty(self) -> Tensor:
         """Mean squared residual (keeps the spatial part small where data is weak)."""
@@ -126,11 +207,14 @@ class VertexMaterial(nn.Module):
     def smoothness(self, sample: int = 65536, generator: torch.Generator | None = None,
                    norm: str = "l2") -> Tensor:
         """Mean over (a random subset of) edges of :func:`edge_penalty` (activated values for
-        "l2", raw for "l1")."""
+        "l2", raw for "l1"), without the regions' shifts: after a split the boundary between
+        the two materials is free, each material stays piecewise constant around its base."""
         e = self.edges
         if sample and e.shape[0] > sample:
             e = e[torch.randint(0, e.shape[0], (sample,), generator=generator).to(e.device)]
-        s = self.raw if norm == "l1" else activated(self.raw)
+        s = self.base + self.residual
+        if norm != "l1":
+            s = activated(s)
         return edge_penalty(s[e[:, 0]] - s[e[:, 1]], norm).mean()
 
 
@@ -184,10 +268,29 @@ def make_field(kind: str, geom: Geometry, grid_res: int, albedo: float, metallic
     return GridMaterial(grid_res, albedo, metallic, roughness)
 
 
-def vertex_materials(field: VertexMaterial | GridMaterial, geom: Geometry
-                     ) -> tuple[Tensor, Tensor, Tensor]:
-    """Material at every mesh vertex (for texture baking): albedo (V, 3), metallic, roughness."""
+def surface_materials(field: VertexMaterial | GridMaterial, geom: Geometry
+                      ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """The material as per-vertex values of a mesh to bake (exports).
+
+    A vertex field split into two materials is returned on the mesh **cut along the
+    boundary**: a vertex used by triangles of both materials appears once per material, so
+    per-vertex interpolation (texture baking, renderers) keeps the boundary as sharp as the
+    training render (:meth:`VertexMaterial.forward`). Otherwise the mesh's own vertices.
+
+    Returns:
+        ``vid`` (P,) long: the mesh vertex of each output vertex; ``triangles`` (F, 3) long into
+        the output vertices (same triangle order as the mesh); albedo (P, 3), metallic (P, 1),
+        roughness (P, 1).
+    """
     with torch.no_grad():
-        if isinstance(field, VertexMaterial):
-            return activate(field.raw)
-        return activate(field.raw_at(geom.vertices))
+        if isinstance(field, GridMaterial):
+            a, m, r = activate(field.raw_at(geom.vertices))
+            return torch.arange(geom.n_vertices), geom.triangles.long(), a, m, r
+        if not field.split_done:
+            return (torch.arange(geom.n_vertices), geom.triangles.long(), *activate(field.raw))
+        tris = geom.triangles.long()
+        key = tris * 2 + field.face_region[:, None]
+        uniq, inv = torch.unique(key.reshape(-1), return_inverse=True)
+        vid, reg = uniq // 2, uniq % 2
+        raw = field.base + field.residual[vid] + field._shifts()[reg]
+        return (vid, inv.reshape(-1, 3), *activate(raw))

@@ -17,6 +17,8 @@ training images were made (clipped highlights give no gradient above 1).
 
 from __future__ import annotations
 
+import copy
+import itertools
 import math
 import time
 from collections.abc import Callable
@@ -29,7 +31,7 @@ from voxnero.errors import RunFolderError
 from voxnero.fields.lights import EnvLight
 from voxnero.io.color import linear_to_srgb, srgb_slope
 from voxnero.material.config import MaterialConfig
-from voxnero.material.field import make_field
+from voxnero.material.field import VertexMaterial, activated, make_field
 from voxnero.material.lights import (
     LOG_MAX,
     LOG_MIN,
@@ -37,6 +39,7 @@ from voxnero.material.lights import (
     background_coverage,
     init_from_background,
 )
+from voxnero.material.regions import two_materials
 from voxnero.material.render import Bounces, Strategies, env_sampler, shade
 from voxnero.material.surface import Geometry, SurfaceCache
 from voxnero.render.latlong import envmap_lookup, latlong_blur
@@ -203,6 +206,7 @@ class MaterialTrainer:
         self.sources = dict(sources or {})
         self.guard = NonFiniteGuard("material", self._nonfinite_cause, NONFINITE_FIX)
         self._unseen: torch.Tensor | None = None  # (H, W, 1) env cells no photo sees directly
+        self._racing = False  # inside the metalness race (_metal_race)
         self._make_optimisers()
 
     # ------------------------------------------------------------------ setup
@@ -282,8 +286,9 @@ class MaterialTrainer:
             bg = self.env.background(c.bg_dirs[j])
             terms["background"] = ((srgb_clipped(bg) - linear_to_srgb(c.bg_rgb[j])) ** 2).mean()
         fc = cfg.field
-        if fc.smooth:
-            terms["smooth"] = fc.smooth * self.field.smoothness(generator=self.gen,
+        w = self._smooth_weight()
+        if w:
+            terms["smooth"] = w * self.field.smoothness(generator=self.gen,
                                                                  norm=fc.smooth_norm)
         if fc.residual_l2:
             terms["residual"] = fc.residual_l2 * self.field.residual_penalty()
@@ -293,6 +298,15 @@ class MaterialTrainer:
         if cfg.light.env_smooth:
             terms["env_smooth"] = cfg.light.env_smooth * self.env.smoothness()
         return terms
+
+    def _smooth_weight(self) -> float:
+        """``field.smooth``, or ``field.smooth_start`` while a vertex field's materials have
+        not been decided (before ``field.split_at``; see FieldConfig.smooth_start)."""
+        fc = self.cfg.field
+        deciding = isinstance(self.field, VertexMaterial) and \
+            (fc.regions == "auto" or fc.metal == "race") and \
+            self.step < int(round(fc.split_at * self.cfg.iters))
+        return fc.smooth_start if deciding else fc.smooth
 
     @property
     def _linearised(self) -> bool:
@@ -309,9 +323,149 @@ class MaterialTrainer:
             dim = 0 if p.dim() == 1 else 1
             p.grad.narrow(dim, 3, 2).zero_()
 
+    def _maybe_split(self) -> None:
+        """At ``field.split_at`` of the steps: one material or two (``field.regions``), then
+        metalness per material by a race (``field.metal``)."""
+        fc = self.cfg.field
+        if self._racing or not isinstance(self.field, VertexMaterial) or \
+                self.step != int(round(fc.split_at * self.cfg.iters)) or \
+                self.field.split_done or self.field.metal_held:
+            return
+        regions = 1
+        if fc.regions == "auto":
+            with torch.no_grad():
+                feats = activated(self.field.raw)[:, [0, 1, 2, 4]]
+            sp = two_materials(feats, fc.split_distance, fc.split_min_fraction)
+            c = sp.centres.cpu().tolist()
+            self.decisions["material_regions"] = {
+                "step": self.step, "regions": 2 if sp.accepted else 1,
+                "distance": round(sp.distance, 4), "smaller_fraction": round(sp.fraction, 4),
+                "centres_albedo_roughness": [[round(v, 3) for v in row] for row in c],
+                "thresholds": {"distance": fc.split_distance,
+                               "fraction": fc.split_min_fraction}}
+            fmt = ["(" + ", ".join(f"{v:.2f}" for v in row) + ")" for row in c]
+            verdict = "two materials: each gets its own base" if sp.accepted else \
+                "one material"
+            self.log(f"[material] step {self.step}: two-means of albedo, roughness per vertex: "
+                     f"centres {fmt[0]} / {fmt[1]}, {sp.distance:.3f} apart (>= "
+                     f"{fc.split_distance:g}), smaller {100 * sp.fraction:.0f} % (>= "
+                     f"{100 * fc.split_min_fraction:.0f} %) -> {verdict}")
+            if sp.accepted:
+                self.field.split(sp.labels, fc.split_metallic)
+                regions = 2
+        if fc.metal == "race":
+            self._metal_race(regions)
+
+    def _metal_race(self, regions: int) -> None:
+        """Decide metalness per material: every assignment of dielectric (0) / metal (1) to the
+        ``regions`` materials trains ``field.race_steps`` steps from the same state with its
+        metalness held; the one with the lowest object loss over the last third of its steps
+        goes on (its steps count), held for the rest of the run. A metal that only imitates a
+        rough dielectric under a light still being learned (or the reverse) loses here, where
+        gradient descent from either side stayed in its basin (docs/STAGE2.md, session 20)."""
+        n = self.cfg.field.race_steps
+        start = self._state()
+        results = []
+        self._racing = True
+        try:
+            for combo in itertools.product((0.0, 1.0), repeat=regions):
+                self._restore(start)
+                self.field.hold_metal(combo)
+                losses = [self.train_step()["object"] for _ in range(n)]
+                tail = losses[-max(1, n // 3):]
+                results.append((sum(tail) / len(tail), combo, self._state()))
+        finally:
+            self._racing = False
+        best = min(results, key=lambda r: r[0])
+        self._restore(best[2])
+        name = {0.0: "dielectric", 1.0: "metal"}
+        table = "; ".join(f"{'/'.join(name[v] for v in c)} {10 * math.log10(1 / max(l, 1e-12)):.2f}"
+                          for l, c, _ in results)
+        self.decisions["metal"] = {
+            "step": self.step - n, "race_steps": n,
+            "candidates": [{"metallic": list(c), "object_loss": round(l, 7)}
+                           for l, c, _ in results],
+            "held": list(best[1])}
+        self.log(f"[material] step {self.step - n}: metalness race over {n} steps per candidate "
+                 f"(object loss as dB, higher wins): {table} -> "
+                 f"{'/'.join(name[v] for v in best[1])}")
+
+    @torch.no_grad()
+    def relabel_boundary(self, max_pixels: int = 16384) -> tuple[int, int]:
+        """Place the boundary of a split field by the photos: every triangle touching it (a
+        vertex shared with a triangle of the other material) takes the material whose render
+        of its cached pixels (centre hits, twice the training samples, the same random numbers
+        for both) is nearer the photo: sRGB error summed over its pixels, as the product of two
+        independent estimates' errors, which has no Monte Carlo variance term (with one
+        estimate the less noisy lobe would win); triangles no pixel sees keep theirs.
+
+        Returns:
+            (triangles changed, triangles considered).
+        """
+        f, c = self.field, self.cache
+        if not isinstance(f, VertexMaterial) or not f.split_done:
+            return 0, 0
+        tris = self.geom.triangles.long()
+        fr = f.face_region
+        V = self.geom.n_vertices
+        lo = torch.full((V,), 2, dtype=torch.long, device=fr.device)
+        hi = torch.full((V,), -1, dtype=torch.long, device=fr.device)
+        flat, lab = tris.reshape(-1), fr.repeat_interleave(3)
+        lo.scatter_reduce_(0, flat, lab, "amin")
+        hi.scatter_reduce_(0, flat, lab, "amax")
+        band = (lo[tris] != hi[tris]).any(1)
+        idx = band[c.tri].nonzero()[:, 0]
+        if idx.numel() == 0:
+            return 0, int(band.sum())
+        if idx.numel() > max_pixels:
+            idx = idx[torch.randperm(idx.numel(), generator=self.gen)[:max_pixels].to(idx.device)]
+        img = self.env.image()
+        indirect = IndirectLight(img, diffuse=self.cfg.render.diffuse) \
+            if self.use_indirect else None
+        sampler = env_sampler(img) if self.spp.env else None
+        seed = int(torch.randint(0, 2**31 - 1, (1,), generator=self.gen))
+        target = linear_to_srgb(c.rgb[idx])
+        F = tris.shape[0]
+        err = torch.zeros(2, F, device=fr.device)
+        seen = torch.zeros(F, device=fr.device).index_add_(
+            0, c.tri[idx], torch.ones(idx.shape[0], device=fr.device))
+        keep = fr.clone()
+        spp = Strategies(2 * self.spp.cos, 2 * self.spp.ggx, 2 * self.spp.env)
+        for k in (0, 1):
+            fr[band] = k
+            e = torch.ones_like(target)
+            for r in (0, 1):  # two independent estimates: (p1 - t)(p2 - t) has no variance term
+                pred = torch.cat([
+                    shade(self.geom, f, img, c.tri[j], c.bary[j], c.x[j], c.n[j], c.v[j], spp,
+                          indirect, sampler, self.visibility,
+                          torch.Generator().manual_seed(seed + 2 * i + r),
+                          bounces=self.bounces, diffuse=self.cfg.render.diffuse)
+                    for i, j in enumerate(idx.split(4096))])
+                e = e * (srgb_clipped(pred) - target)
+            err[k].index_add_(0, c.tri[idx], e.mean(-1))
+        new = torch.where(band & (seen > 0), (err[1] < err[0]).long(), keep)
+        fr.copy_(new)
+        return int((new != keep).sum()), int(band.sum())
+
+    def _maybe_relabel(self) -> None:
+        """At each of ``field.relabel_at`` (fractions of the steps), :meth:`relabel_boundary`."""
+        fc = self.cfg.field
+        if self._racing or not isinstance(self.field, VertexMaterial) or \
+                not self.field.split_done:
+            return
+        if self.step not in {int(round(a * self.cfg.iters)) for a in fc.relabel_at}:
+            return
+        changed, band = self.relabel_boundary()
+        self.decisions.setdefault("boundary_relabel", []).append(
+            {"step": self.step, "changed": changed, "band": band})
+        self.log(f"[material] step {self.step}: material boundary placed by the photos: "
+                 f"{changed} of {band} triangles along it changed material")
+
     def train_step(self) -> dict[str, float]:
         """One optimisation step; returns the loss terms as floats."""
         self._maybe_upsample()
+        self._maybe_split()
+        self._maybe_relabel()
         f = self._lr_factor()
         for opt, lr in ((self.opt_mat, self.cfg.lr_material), (self.opt_env, self.cfg.lr_env)):
             for g in opt.param_groups:
@@ -330,6 +484,8 @@ class MaterialTrainer:
             if self.cfg.render.hold_brdf and not self._linearised:
                 self._hold_brdf()
             self.opt_mat.step()
+            if isinstance(self.field, VertexMaterial):
+                self.field.impose_metal()
             self._env_step()
         else:  # never let one bad batch poison the parameters: skip the update
             self.opt_mat.zero_grad(set_to_none=True)
@@ -403,9 +559,10 @@ class MaterialTrainer:
         ema = None
         with GracefulStop() as stop:
             while self.step < self.cfg.iters:
+                before = self.step
                 last = self.train_step()
                 ema = self._mse if ema is None else 0.95 * ema + 0.05 * self._mse
-                bar.update(1)
+                bar.update(self.step - before)  # the metalness race takes several at once
                 if self.step % self.cfg.log_every == 0 or self.step == self.cfg.iters:
                     psnr = -10 * math.log10(max(ema, 1e-12))
                     bar.set_postfix(obj_psnr=f"{psnr:.2f}",
@@ -451,11 +608,7 @@ class MaterialTrainer:
         if not path.parent.is_dir():
             raise RunFolderError("the run folder was removed during the run", path=path.parent,
                                  fix="re-run the command (into this --out it starts over)")
-        state = {"fingerprint": self.fingerprint(), "step": self.step, "level": self.level,
-                 "field": self.field.state_dict(),
-                 "env": self.env.log_radiance.detach().clone(),
-                 "opt_mat": self.opt_mat.state_dict(), "opt_env": self.opt_env.state_dict(),
-                 "gen": self.gen.get_state()}
+        state = {"fingerprint": self.fingerprint(), **self._state()}
         tmp = path.with_suffix(".tmp")
         torch.save(state, tmp)
         tmp.replace(path)
@@ -467,10 +620,26 @@ class MaterialTrainer:
                                         "material"):
             self.log(f"[material] note: {path} predates run fingerprints; resuming without "
                      "checking its mesh, scene and settings")
+        self._restore(state)
+        if isinstance(self.field, VertexMaterial) and self.field.metal_held:
+            self.decisions.setdefault("metal", {"held": self.field.metal_fixed.tolist(),
+                                                "note": "restored from the checkpoint"})
+
+    def _state(self) -> dict[str, Any]:
+        """Everything training resumes from (copies, not references)."""
+        return {"step": self.step, "level": self.level,
+                "field": {k: v.detach().clone() for k, v in self.field.state_dict().items()},
+                "env": self.env.log_radiance.detach().clone(),
+                "opt_mat": copy.deepcopy(self.opt_mat.state_dict()),
+                "opt_env": copy.deepcopy(self.opt_env.state_dict()),
+                "gen": self.gen.get_state()}
+
+    def _restore(self, state: dict[str, Any]) -> None:
+        """Return to a :meth:`_state` (or a loaded checkpoint)."""
         self.step, self.level = int(state["step"]), int(state["level"])
         self.field.load_state_dict(state["field"])
         self.env = EnvLight.from_image(torch.exp(state["env"]).to(self.device), LOG_MAX, LOG_MIN)
         self._make_optimisers()
-        self.opt_mat.load_state_dict(state["opt_mat"])
-        self.opt_env.load_state_dict(state["opt_env"])
+        self.opt_mat.load_state_dict(copy.deepcopy(state["opt_mat"]))
+        self.opt_env.load_state_dict(copy.deepcopy(state["opt_env"]))
         self.gen.set_state(state["gen"].cpu())

@@ -93,3 +93,31 @@ def load_mesh(path: str | Path, norm: Normalisation | None = None) -> o3d.geomet
     if not mesh.has_vertex_normals():
         mesh.compute_vertex_normals()
     return mesh
+
+
+def cut_mesh(mesh: o3d.geometry.TriangleMesh, vid: np.ndarray, triangles: np.ndarray
+             ) -> o3d.geometry.TriangleMesh:
+    """The mesh re-indexed onto the vertices ``vid`` (a vertex may appear more than once: the
+    mesh is cut along the seams that makes; positions and normals are copied, so the surface
+    does not move).
+
+    Args:
+        mesh: legacy mesh (any frame); vid: (P,) indices into its vertices; triangles: (F, 3)
+            indices into ``vid``.
+
+    Returns:
+        A new legacy mesh with P vertices (normals of the source's vertices, computed first if
+        it had none) and the given triangles; the source itself when ``vid`` is the identity
+        and the triangles are its own.
+    """
+    V = np.asarray(mesh.vertices)
+    same = len(vid) == len(V) and np.array_equal(vid, np.arange(len(V))) and \
+        np.array_equal(triangles, np.asarray(mesh.triangles))
+    if same:
+        return mesh
+    if not mesh.has_vertex_normals():
+        mesh.compute_vertex_normals()
+    out = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V[vid]),
+                                    o3d.utility.Vector3iVector(np.asarray(triangles, np.int32)))
+    out.vertex_normals = o3d.utility.Vector3dVector(np.asarray(mesh.vertex_normals)[vid])
+    return out
