@@ -8,7 +8,7 @@ import torch
 from tests.material.stage2_scene import ring_cameras, smooth_env, sphere_geometry
 from voxnero.material.config import MaterialConfig
 from voxnero.material.evaluate import render_view
-from voxnero.material.field import GridMaterial, VertexMaterial, activate
+from voxnero.material.field import GridMaterial, VertexMaterial
 from voxnero.material.render import Strategies, env_sampler, shade
 from voxnero.material.surface import build_cache
 from voxnero.material.trainer import (
@@ -367,16 +367,18 @@ def test_two_materials_are_found_and_each_gets_its_metalness_from_the_race():
         reg = tr.decisions["material_regions"]
         assert reg["regions"] == 2, reg
         f = tr.field
-        # the split follows the equator: each region is (almost) one half
-        agree = float((f.region.bool() == top).float().mean())
-        assert max(agree, 1 - agree) > 0.9, agree
-        metal_region = int(f.region[top].float().mean() > 0.5)
+        # each material is mostly one half (the photos place the boundary: see the next tests)
+        up = geom.vertices[geom.triangles.long()][..., 2].mean(1) > 0
+        agree = float((f.face_region.bool() == up).float().mean())
+        assert max(agree, 1 - agree) > 0.75, agree
+        metal_region = int(f.face_region[up].float().mean() > 0.5)
         held = tr.decisions["metal"]["held"]
         assert held[metal_region] == 1.0 and held[1 - metal_region] == 0.0, held
         assert len(tr.decisions["metal"]["candidates"]) == 4
         assert any("metalness race" in s for s in lines)
-        _, m, _ = activate(f.raw)
-        assert float(m[top].median()) > 0.99 and float(m[~top].median()) < 0.01
+        _, m, _ = f(cache.tri, cache.bary, cache.x)
+        hit_up = up[cache.tri]
+        assert float(m[hit_up].median()) > 0.99 and float(m[~hit_up].median()) < 0.01
     finally:
         torch.set_num_threads(old)
 
@@ -447,23 +449,34 @@ def test_relabel_boundary_moves_a_misplaced_material_boundary_to_the_photos():
         torch.set_num_threads(old)
 
 
-def test_smoothness_is_weak_until_the_materials_are_decided():
-    """``field.smooth_start`` before ``split_at`` × iters (so that two materials can show apart),
-    ``field.smooth`` from then on; with nothing to decide (one region, free metalness, or a grid
-    field) ``smooth`` throughout."""
+def test_the_materials_probe_leaves_no_trace_and_reads_chromaticity():
+    """The two-materials probe trains with the smoothness off and the light held, then
+    returns to where it started (parameters, env map, step, random stream); its features are
+    chromaticity (each row sums to 1) and roughness."""
     geom, env, cache = _scene(2, 16, (2, 2, 2))
     cfg = _cfg(100)
-    cfg.field.kind, cfg.field.smooth, cfg.field.smooth_start, cfg.field.split_at = \
-        "vertex", 0.2, 0.05, 0.3
+    cfg.field.kind, cfg.field.probe_steps = "vertex", 5
     tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)
-    seen = {}
-    for step in (0, 29, 30, 99):
-        tr.step = step
-        seen[step] = tr._smooth_weight()
-    assert seen == {0: 0.05, 29: 0.05, 30: 0.2, 99: 0.2}
-    cfg.field.regions, cfg.field.metal = "one", "free"
-    tr.step = 0
-    assert tr._smooth_weight() == 0.2
-    cfg.field.regions, cfg.field.metal, cfg.field.kind = "auto", "race", "grid"
-    assert MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)._smooth_weight() \
-        == 0.2
+    for _ in range(3):
+        tr.train_step()
+    before = tr._state()
+    seen = []
+    step = tr.train_step
+
+    def spy():
+        seen.append((tr._smooth_weight(), tr.env.log_radiance.detach().clone()))
+        return step()
+
+    tr.train_step = spy
+    feats = tr._probe_features()
+    tr.train_step = step
+    assert len(seen) == 5 and all(w == 0.0 for w, _ in seen)
+    assert all(torch.equal(e, seen[0][1]) for _, e in seen)  # the light is held
+    assert feats.shape == (geom.n_vertices, 4)
+    assert torch.allclose(feats[:, :3].sum(1), torch.ones(geom.n_vertices), atol=1e-5)
+    after = tr._state()
+    assert after["step"] == before["step"] and torch.equal(after["gen"], before["gen"])
+    assert torch.equal(after["env"], before["env"])
+    for k, v in before["field"].items():
+        assert torch.equal(after["field"][k], v), k
+    assert tr._smooth_weight() == cfg.field.smooth

@@ -34,7 +34,8 @@ class FieldConfig:
         "init_metallic": FRACTION, "init_roughness": FRACTION, "residual_l2": WEIGHT,
         "range_prior": WEIGHT, "split_at": Range(0.0, 1.0), "split_distance": Range(0.0, 2.0),
         "split_min_fraction": Range(0.0, 0.5), "split_metallic": Range(0.0, 1.0, lo_open=True),
-        "race_steps": at_least(1, BIG_COUNT), "smooth_start": WEIGHT, "relabel_at": FRACTION}
+        "race_steps": at_least(1, BIG_COUNT), "relabel_at": FRACTION,
+        "probe_steps": at_least(0, BIG_COUNT)}
 
     kind: Literal["vertex", "grid"] = "vertex"
     """vertex: parameters per mesh vertex, barycentric interpolation, smoothness over mesh edges;
@@ -42,13 +43,7 @@ class FieldConfig:
     grid_res: int = 48
     """Grid resolution (kind: grid)."""
     smooth: float = 0.2
-    """Weight of the smoothness regulariser (mean penalty of neighbour differences), from the
-    materials' decision (``split_at``) on; ``smooth_start`` before it."""
-    smooth_start: float = 0.05
-    """The smoothness weight before ``split_at`` (kind: vertex, with ``regions`` = auto or
-    ``metal`` = race): weak enough that two materials show apart by then (the corpus bunny's
-    halves: 0.30 apart at 0.05, 0.10 at 0.2, where the split needs 0.25), after which each
-    material is held to piecewise constant by ``smooth`` with the boundary between them free."""
+    """Weight of the smoothness regulariser (mean penalty of neighbour differences)."""
     smooth_norm: Literal["l2", "l1"] = "l1"
     """How the smoothness measures a neighbour difference (``voxnero.material.field``).
     "l1" (total variation of the raw values): a material that changes pays per edge crossed,
@@ -72,17 +67,23 @@ class FieldConfig:
     """Weak pull of metallic toward 0 or 1 (m (1 − m)) and of every raw value toward 0."""
     regions: Literal["auto", "one"] = "auto"
     """One material or two (kind: vertex). "auto": at ``split_at`` of the steps the vertices'
-    albedo and roughness are split by two-means (:mod:`voxnero.material.regions`); if the two
-    centres lie ``split_distance`` apart and the smaller holds ``split_min_fraction`` of the
-    vertices, each gets its own base and both restart metalness at ``split_metallic``. Under
+    albedo chromaticity and roughness after a probe (``probe_steps``) are split by two-means
+    (:mod:`voxnero.material.regions`); if the two centres lie ``split_distance`` apart and the
+    smaller holds ``split_min_fraction`` of the vertices, each gets its own base, every
+    triangle is one of the two, and both restart metalness at ``split_metallic``. Under
     one shared base the corpus bunny's terracotta half followed its copper half into a rough
     metal (metallic 0.96; docs/STAGE2.md, session 20). Logged and written to materials.json.
     "one": never split."""
+    probe_steps: int = 100
+    """Steps of the throw-away probe whose per-vertex materials ``regions`` = auto splits
+    (smoothness off, light held; ``MaterialTrainer._probe_features``); 0: the current ones."""
     split_at: float = 0.15
     """Fraction of ``iters`` at which ``regions`` and ``metal`` decide."""
-    split_distance: float = 0.25
-    """Distance of the two clusters' centres (activated albedo RGB and roughness, each in
-    [0, 1]) from which they are two materials."""
+    split_distance: float = 0.06
+    """Distance of the two clusters' centres (albedo chromaticity and roughness,
+    ``regions.material_features``) from which they are two materials. Measured after the
+    probe: the corpus bunny's copper and terracotta halves 0.10 apart, the one-material oak
+    table (whose albedo under its clipped panels is brighter, not another hue) 0.02."""
     split_min_fraction: float = 0.1
     """Share of the vertices the smaller cluster must hold."""
     split_metallic: float = 0.05

@@ -7,8 +7,9 @@ barely tell apart but a new light does (docs/STAGE2.md). So the trainer asks, on
 vertices fall into two clearly different materials; if they do, each gets its own base
 (:meth:`voxnero.material.field.VertexMaterial.split`) and both decide their metalness again.
 
-The question is asked of albedo and roughness only (activated values, both in [0, 1]):
-metalness is what the shared base may have got wrong for one of them.
+The question is asked of the albedo's chromaticity and the roughness
+(:func:`material_features`): metalness is what the shared base may have got wrong for one of
+them, and brightness is what an albedo absorbs of a light still being learned.
 """
 
 from __future__ import annotations
@@ -33,6 +34,42 @@ class Split:
     """Share of the vertices in the smaller cluster."""
     accepted: bool
     """Whether the two clusters count as two materials."""
+
+
+def material_features(values: Tensor) -> Tensor:
+    """Features of activated materials for :func:`two_materials`.
+
+    Args:
+        values: (V, 5) activated albedo RGB, metallic, roughness.
+
+    Returns:
+        (V, 4): albedo chromaticity RGB / (R + G + B) (sums to 1; brightness dropped) and
+        roughness, all in [0, 1].
+    """
+    a = values[:, :3]
+    return torch.cat([a / a.sum(1, keepdim=True).clamp_min(1e-6), values[:, 4:5]], 1)
+
+
+def mesh_average(values: Tensor, edges: Tensor, rounds: int) -> Tensor:
+    """Average per-vertex values with their mesh neighbours ``rounds`` times (each round: a
+    vertex becomes the mean of itself and its neighbours), to quiet per-vertex noise before a
+    split without moving a boundary by more than ``rounds`` edges.
+
+    Args:
+        values: (V, C); edges: (E, 2) long vertex pairs (each once); rounds: >= 0.
+
+    Returns:
+        (V, C).
+    """
+    v = values
+    deg = torch.ones(v.shape[0], device=v.device).index_add_(
+        0, edges.reshape(-1), torch.ones(edges.numel(), device=v.device))
+    for _ in range(rounds):
+        s = v.clone()
+        s.index_add_(0, edges[:, 0], v[edges[:, 1]])
+        s.index_add_(0, edges[:, 1], v[edges[:, 0]])
+        v = s / deg[:, None]
+    return v
 
 
 def two_means(x: Tensor, iters: int = 50) -> tuple[Tensor, Tensor]:
@@ -64,7 +101,7 @@ def two_materials(features: Tensor, min_distance: float, min_fraction: float) ->
     """Split vertices into two materials when their features say so.
 
     Args:
-        features: (V, C) per-vertex material features (activated albedo and roughness).
+        features: (V, C) per-vertex material features (:func:`material_features`).
         min_distance: the centres must lie at least this far apart (feature units).
         min_fraction: and the smaller cluster must hold at least this share of the vertices.
 

@@ -39,7 +39,7 @@ from voxnero.material.lights import (
     background_coverage,
     init_from_background,
 )
-from voxnero.material.regions import two_materials
+from voxnero.material.regions import material_features, mesh_average, two_materials
 from voxnero.material.render import Bounces, Strategies, env_sampler, shade
 from voxnero.material.surface import Geometry, SurfaceCache
 from voxnero.render.latlong import envmap_lookup, latlong_blur
@@ -147,6 +147,16 @@ def decide_secondary(fraction: float, visibility: Any, indirect: str) -> tuple[s
     casts = visibility in ("on", True) or (visibility == "auto" and seen)
     return model, casts
 
+RELABEL_PASSES = 4
+"""Most passes of ``relabel_boundary`` at each ``field.relabel_at`` point."""
+
+PROBE_AVERAGE_ROUNDS = 4
+"""Rounds of neighbour averaging of the probe's per-vertex features before the two-means split
+(:func:`voxnero.material.regions.mesh_average`): the probe's free per-vertex values are noisy
+(Monte Carlo gradients, no smoothness), a boundary moves by at most this many edges, and the
+photos place it afterwards (``relabel_boundary``)."""
+
+
 class MaterialTrainer:
     """Fits the material field and the env map to the cached training pixels."""
 
@@ -206,7 +216,9 @@ class MaterialTrainer:
         self.sources = dict(sources or {})
         self.guard = NonFiniteGuard("material", self._nonfinite_cause, NONFINITE_FIX)
         self._unseen: torch.Tensor | None = None  # (H, W, 1) env cells no photo sees directly
-        self._racing = False  # inside the metalness race (_metal_race)
+        self._racing = False  # inside the metalness race or the materials' probe
+        self._probing = False  # the probe: smoothness off, env map held (_probe_features)
+        self._relabel_from = -1  # relabel_at points up to this step are done
         self._make_optimisers()
 
     # ------------------------------------------------------------------ setup
@@ -300,13 +312,8 @@ class MaterialTrainer:
         return terms
 
     def _smooth_weight(self) -> float:
-        """``field.smooth``, or ``field.smooth_start`` while a vertex field's materials have
-        not been decided (before ``field.split_at``; see FieldConfig.smooth_start)."""
-        fc = self.cfg.field
-        deciding = isinstance(self.field, VertexMaterial) and \
-            (fc.regions == "auto" or fc.metal == "race") and \
-            self.step < int(round(fc.split_at * self.cfg.iters))
-        return fc.smooth_start if deciding else fc.smooth
+        """``field.smooth``; 0 inside the materials' probe (:meth:`_probe_features`)."""
+        return 0.0 if self._probing else self.cfg.field.smooth
 
     @property
     def _linearised(self) -> bool:
@@ -333,20 +340,21 @@ class MaterialTrainer:
             return
         regions = 1
         if fc.regions == "auto":
-            with torch.no_grad():
-                feats = activated(self.field.raw)[:, [0, 1, 2, 4]]
+            feats = self._probe_features()
             sp = two_materials(feats, fc.split_distance, fc.split_min_fraction)
             c = sp.centres.cpu().tolist()
             self.decisions["material_regions"] = {
                 "step": self.step, "regions": 2 if sp.accepted else 1,
                 "distance": round(sp.distance, 4), "smaller_fraction": round(sp.fraction, 4),
-                "centres_albedo_roughness": [[round(v, 3) for v in row] for row in c],
+                "centres_chromaticity_roughness": [[round(v, 3) for v in row] for row in c],
+                "probe_steps": fc.probe_steps,
                 "thresholds": {"distance": fc.split_distance,
                                "fraction": fc.split_min_fraction}}
             fmt = ["(" + ", ".join(f"{v:.2f}" for v in row) + ")" for row in c]
             verdict = "two materials: each gets its own base" if sp.accepted else \
                 "one material"
-            self.log(f"[material] step {self.step}: two-means of albedo, roughness per vertex: "
+            self.log(f"[material] step {self.step}: two-means of albedo chromaticity, roughness "
+                     f"per vertex after a {fc.probe_steps}-step probe: "
                      f"centres {fmt[0]} / {fmt[1]}, {sp.distance:.3f} apart (>= "
                      f"{fc.split_distance:g}), smaller {100 * sp.fraction:.0f} % (>= "
                      f"{100 * fc.split_min_fraction:.0f} %) -> {verdict}")
@@ -355,6 +363,33 @@ class MaterialTrainer:
                 regions = 2
         if fc.metal == "race":
             self._metal_race(regions)
+
+    def _probe_features(self) -> torch.Tensor:
+        """Per-vertex features for the two-materials question: albedo chromaticity (RGB / sum)
+        and roughness (:func:`voxnero.material.regions.material_features`), read after
+        ``field.probe_steps`` steps of a throw-away probe from the current state with the
+        smoothness off and the light held: there the vertices show their own materials (the
+        total variation that keeps a material piecewise constant also keeps two from showing
+        apart: the corpus bunny's halves were 0.10 apart under 0.2, 0.30 under 0.05), and a
+        light still being learned shows as brightness, which chromaticity ignores (the oak
+        table's faces under its clipped panels: albedo 0.68 / 0.50 / 0.22 against 0.53 / 0.36
+        / 0.17, the same hue)."""
+        n = self.cfg.field.probe_steps
+        start = self._state() if n else None
+        if n:  # a fresh Adam: the kept one's second moments are the smoothness's, not the data's
+            self.opt_mat = torch.optim.Adam(self.field.parameters(), lr=self.cfg.lr_material)
+        self._racing, self._probing = True, True
+        try:
+            for _ in range(n):
+                self.train_step()
+            with torch.no_grad():
+                feats = mesh_average(material_features(activated(self.field.raw)),
+                                     self.field.edges, PROBE_AVERAGE_ROUNDS)
+        finally:
+            self._racing, self._probing = False, False
+        if start is not None:
+            self._restore(start)
+        return feats
 
     def _metal_race(self, regions: int) -> None:
         """Decide metalness per material: every assignment of dielectric (0) / metal (1) to the
@@ -448,18 +483,29 @@ class MaterialTrainer:
         return int((new != keep).sum()), int(band.sum())
 
     def _maybe_relabel(self) -> None:
-        """At each of ``field.relabel_at`` (fractions of the steps), :meth:`relabel_boundary`."""
+        """Once the steps pass each of ``field.relabel_at`` (fractions of the steps; one that
+        falls inside the metalness race is taken after it): up to :data:`RELABEL_PASSES` passes
+        of :meth:`relabel_boundary` (the boundary moves by about a triangle per pass), until a
+        pass changes under 1 % of the triangles along it."""
         fc = self.cfg.field
         if self._racing or not isinstance(self.field, VertexMaterial) or \
                 not self.field.split_done:
             return
-        if self.step not in {int(round(a * self.cfg.iters)) for a in fc.relabel_at}:
+        due = [p for p in sorted({int(round(a * self.cfg.iters)) for a in fc.relabel_at})
+               if self._relabel_from < p <= self.step]
+        if not due:
             return
-        changed, band = self.relabel_boundary()
+        self._relabel_from = self.step
+        total, passes, band = 0, 0, 0
+        while passes < RELABEL_PASSES:
+            changed, band = self.relabel_boundary()
+            total, passes = total + changed, passes + 1
+            if changed <= 0.01 * band:
+                break
         self.decisions.setdefault("boundary_relabel", []).append(
-            {"step": self.step, "changed": changed, "band": band})
+            {"step": self.step, "changed": total, "passes": passes, "band": band})
         self.log(f"[material] step {self.step}: material boundary placed by the photos: "
-                 f"{changed} of {band} triangles along it changed material")
+                 f"{total} triangles changed material in {passes} pass(es) ({band} along it now)")
 
     def train_step(self) -> dict[str, float]:
         """One optimisation step; returns the loss terms as floats."""
@@ -486,7 +532,8 @@ class MaterialTrainer:
             self.opt_mat.step()
             if isinstance(self.field, VertexMaterial):
                 self.field.impose_metal()
-            self._env_step()
+            if not self._probing:
+                self._env_step()
         else:  # never let one bad batch poison the parameters: skip the update
             self.opt_mat.zero_grad(set_to_none=True)
             self.opt_env.zero_grad(set_to_none=True)
@@ -621,6 +668,7 @@ class MaterialTrainer:
             self.log(f"[material] note: {path} predates run fingerprints; resuming without "
                      "checking its mesh, scene and settings")
         self._restore(state)
+        self._relabel_from = self.step - 1
         if isinstance(self.field, VertexMaterial) and self.field.metal_held:
             self.decisions.setdefault("metal", {"held": self.field.metal_fixed.tolist(),
                                                 "note": "restored from the checkpoint"})
