@@ -476,7 +476,7 @@ def test_the_materials_probe_leaves_no_trace_and_reads_chromaticity():
     assert torch.allclose(feats[:, :3].sum(1), torch.ones(geom.n_vertices), atol=1e-5)
     after = tr._state()
     assert after["step"] == before["step"] and torch.equal(after["gen"], before["gen"])
-    assert torch.equal(after["env"], before["env"])
+    assert torch.allclose(after["env"], before["env"], atol=1e-5)  # log(exp(.)) round trip
     for k, v in before["field"].items():
         assert torch.equal(after["field"][k], v), k
     assert tr._smooth_weight() == cfg.field.smooth
