@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 import torch
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from voxnero.fields.exposure import ImageGains, gain_spread, measure_log_gains
@@ -27,6 +27,7 @@ def test_gains_have_geometric_mean_one_and_ignore_a_common_offset():
 
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 10_000), sigma=st.floats(0.0, 0.5), n=st.integers(2, 12))
+@example(seed=230, sigma=0.5, n=2)  # a gain that clips most of its photo (found on a fresh clone)
 def test_measurement_recovers_per_photo_gains(seed, sigma, n):
     """Photos = gain_i · render (per channel) on a fifth of pixels clipped, dark or replaced by
     junk: the measured centred log gains match the true centred ones within 0.02."""
