@@ -110,6 +110,11 @@ class VertexMaterial(nn.Module):
                                                         dtype=torch.long))
         # metalness held per region (-1: learned freely), see hold_metal
         self.register_buffer("metal_fixed", torch.full((2,), -1.0))
+        # whether ``region`` marks a split, kept as a flag so that every forward (the hot path)
+        # does not reduce over the vertices (a device sync on CUDA); refreshed on loading
+        self._split = False
+        self.register_load_state_dict_post_hook(
+            lambda module, _keys: setattr(module, "_split", bool(module.region.any())))
         f = geom.triangles
         e = torch.cat([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
         e = torch.unique(torch.sort(e, dim=1).values, dim=0)
@@ -143,7 +148,7 @@ class VertexMaterial(nn.Module):
     @property
     def split_done(self) -> bool:
         """Whether the surface was split into two materials (:meth:`split`)."""
-        return bool(self.region.any())
+        return self._split
 
     @property
     def raw(self) -> Tensor:
@@ -170,6 +175,7 @@ class VertexMaterial(nn.Module):
         self.shift.copy_((c[1] - c[0])[None])
         self.residual -= torch.stack(c)[labels]
         self.region.copy_(labels)
+        self._split = bool(labels.any())
         self.face_region.copy_((labels[self.geom.triangles].sum(1) >= 2).long())
         self.base[3] = _logit(metallic_restart)
         self.shift[:, 3] = 0.0

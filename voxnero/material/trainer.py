@@ -300,8 +300,7 @@ class MaterialTrainer:
         fc = cfg.field
         w = self._smooth_weight()
         if w:
-            terms["smooth"] = w * self.field.smoothness(generator=self.gen,
-                                                                 norm=fc.smooth_norm)
+            terms["smooth"] = w * self.field.smoothness(generator=self.gen, norm=fc.smooth_norm)
         if fc.residual_l2:
             terms["residual"] = fc.residual_l2 * self.field.residual_penalty()
         if fc.range_prior:
