@@ -474,3 +474,29 @@ def test_near_background_trainer_runs_the_carved_start_alone(scene, tmp_path):
     cfg.light.background = "distant"
     tr = ShapeTrainer(cfg, scene, tmp_path / "far", progress=False, log=lambda m: None)
     assert tr.cfg.iters == 40 and starts.has_race(tr.cfg)
+
+
+def test_error_guided_run_resumes_identically(scene, tmp_path):
+    """With half of each batch drawn from the error map, a run interrupted at step 8 and
+    resumed ends with the same SDF grid as one run straight through (the map is in the
+    checkpoint)."""
+    cfg = _cfg(16)
+    cfg.sampling.error_frac = 0.5
+    straight = ShapeTrainer(cfg, scene, tmp_path / "a", progress=False, log=lambda s: None)
+    straight.run()
+    tr = ShapeTrainer(cfg, scene, tmp_path / "b", progress=False, log=lambda s: None)
+    orig, calls = tr.train_step, {"n": 0}
+
+    def flaky():
+        calls["n"] += 1
+        if calls["n"] == 9:
+            raise KeyboardInterrupt
+        return orig()
+
+    tr.train_step = flaky
+    with pytest.raises(KeyboardInterrupt):
+        tr.run()
+    assert tr.pixels.measured and float(tr.pixels.err.std()) > 0  # the map was in use
+    resumed = ShapeTrainer(cfg, scene, tmp_path / "b", progress=False, log=lambda s: None)
+    resumed.run()
+    assert torch.equal(resumed.model.sdf.grid, straight.model.sdf.grid)

@@ -123,7 +123,9 @@ def train_coarse(model: CoarseModel, env: EnvLight, batch: Callable[[int], tuple
                  lr_env: float = 3e-2, tv: float = 0.0, radius: float = 1.0,
                  generator: torch.Generator | None = None,
                  progress: Callable[[int, float], None] | None = None,
-                 background: Background | None = None) -> list[float]:
+                 background: Background | None = None,
+                 feedback: Callable[[torch.Tensor, torch.Tensor], None] | None = None
+                 ) -> list[float]:
     """Fit the coarse model, the env map and the background to the photos; returns the
     per-step loss.
 
@@ -137,6 +139,8 @@ def train_coarse(model: CoarseModel, env: EnvLight, batch: Callable[[int], tuple
         tv: weight of the total variation of the raw density.
         progress: called with (step, loss) after each step.
         background: radiance behind the object (default: ``env`` along the ray's direction).
+        feedback: called with each batch's rendered and target linear RGB ``(n, 3)`` (the
+            error-guided pixel sampler's measurement).
     """
     if background is None:
         def background(o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
@@ -152,6 +156,8 @@ def train_coarse(model: CoarseModel, env: EnvLight, batch: Callable[[int], tuple
         o, d, target = batch(rays)
         out = render_coarse(model, background, o, d, samples, radius, True, generator)
         loss = loss_fn(out["rgb"], target)
+        if feedback is not None:
+            feedback(out["rgb"].detach(), target)
         if tv > 0:
             loss = loss + tv * tv_loss(model.density_grid.grid[0])
         opt.zero_grad(set_to_none=True)

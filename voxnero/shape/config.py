@@ -180,7 +180,9 @@ class SamplingConfig:
 
     RANGES: ClassVar[dict[str, Range]] = {
         "rays": at_least(1, BIG_COUNT), "coarse": at_least(2, 4096), "fine": at_least(0, 4096),
-        "coarse_keep": at_least(0, 4096), "radius": positive(10.0)}
+        "coarse_keep": at_least(0, 4096), "radius": positive(10.0),
+        "error_frac": FRACTION, "error_tile": at_least(1, 4096),
+        "error_decay": Range(0.0, 1.0, lo_open=True)}
 
     rays: int = 4096
     coarse: int = 32
@@ -191,6 +193,15 @@ class SamplingConfig:
     """How many evenly spaced coarse samples join the fine ones in the rendered set."""
     radius: float = 1.0
     """Bounding sphere of the object in the unit frame."""
+    error_frac: float = 0.0
+    """Share of each training batch (coarse and SDF stage) drawn where the render and the
+    photo disagree, in proportion to a running error per image tile
+    (:class:`voxnero.cameras.error_pixels.ErrorGuidedPixels`); 0 = uniform pixels. The race's
+    judge and the light switches always measure on uniform pixels."""
+    error_tile: int = 8
+    """Tile side in pixels of the error map."""
+    error_decay: float = 0.5
+    """Weight of a new measurement in a tile's running error."""
 
 
 @dataclass

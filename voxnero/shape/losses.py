@@ -54,6 +54,16 @@ def color_loss(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-3,
     return charbonnier(p, target, eps)
 
 
+@torch.no_grad()
+def pixel_error(pred: torch.Tensor, target: torch.Tensor, space: str = "srgb") -> torch.Tensor:
+    """``(N,)`` mean absolute colour error per pixel of linear ``pred`` and ``target (N, 3)``,
+    in the space :func:`color_loss` compares them (no gradient: it steers the sampling)."""
+    p = camera_response(pred, target)
+    if space == "srgb":
+        p, target = encode_unclipped(p), linear_to_srgb(target)
+    return (p - target).abs().mean(-1)
+
+
 def eikonal(grad: torch.Tensor) -> torch.Tensor:
     """Mean ``(|∇f| − 1)²`` over gradients ``(M, 3)``."""
     if grad.numel() == 0:

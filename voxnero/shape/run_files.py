@@ -77,7 +77,7 @@ def save_checkpoint(tr: ShapeTrainer) -> Path:
                 "res": tr.model.sdf.res, "gen": tr.gen.get_state(),
                 "config": to_dict(tr.cfg), "switches": asdict(tr.sw),
                 "decisions": [asdict(d) for d in tr.decisions],
-                "occ_pending": tr.occ_pending}, tmp)
+                "occ_pending": tr.occ_pending, "pixels": tr.pixels.state_dict()}, tmp)
     os.replace(tmp, path)
     return path
 
@@ -120,6 +120,8 @@ def load_checkpoint(tr: ShapeTrainer) -> bool:
     tr.step = int(ck["step"])
     tr.train_time = float(ck["train_time"])
     tr.gen.set_state(ck["gen"])
+    if "pixels" in ck:
+        tr.pixels.load_state_dict(ck["pixels"])
     tr.last_eval = tr.train_time
     tr.log(f"[shape] resumed from {path} at step {tr.step} ({tr.train_time:.0f} s trained)")
     return True

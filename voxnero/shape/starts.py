@@ -140,10 +140,14 @@ def coarse_start(tr: ShapeTrainer) -> None:
     def bg(o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
         return background(m, d) if env is m.env else env.background(d)
 
-    hist = train_coarse(model, env, lambda n: tr.pixel_batch(n, tr.gen)[:3],
+    pixels = tr.pixels = tr.make_pixel_sampler()  # the SDF stage starts a fresh error map
+    hist = train_coarse(model, env, lambda n: tr.train_batch(n)[:3],
                         lambda p, t: losses.color_loss(p, t, lc.charbonnier_eps, lc.color_space),
                         c.iters, c.rays, c.samples, c.lr_grid, c.lr_head, tr.cfg.optim.lr_env,
-                        c.tv, tr.cfg.sampling.radius, tr.gen, progress, background=bg)
+                        c.tv, tr.cfg.sampling.radius, tr.gen, progress, background=bg,
+                        feedback=lambda p, t: pixels.feedback(
+                            losses.pixel_error(p, t, lc.color_space)))
+    tr.pixels = tr.make_pixel_sampler()
     if bar is not None:
         bar.close()
     if tr.cfg.light.exposure == "auto" and not tr.sw.exposure:

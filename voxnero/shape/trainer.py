@@ -22,6 +22,7 @@ from typing import Any
 
 import torch
 
+from voxnero.cameras.error_pixels import ErrorGuidedPixels
 from voxnero.cameras.rays import pixel_rays, random_pixels
 from voxnero.fields.grid import gaussian_blur3d
 from voxnero.safety import fingerprint
@@ -88,6 +89,8 @@ class ShapeTrainer:
         self.coarse_voxel = self.model.sdf.voxel
         """Voxel of the first grid: smoothing lengths are fixed in space across resolutions."""
         self.opt = self.make_optimizer()
+        self.pixels = self.make_pixel_sampler()
+        """The training batches' pixels (uniform, or partly where the fit is worst)."""
         self.step, self.train_time, self.last_eval = 0, 0.0, 0.0
         self.occ_targets: OcclusionTargets | None = None
         self.eval_split = None
@@ -99,6 +102,12 @@ class ShapeTrainer:
     def make_optimizer(self) -> torch.optim.Adam:
         """Adam over the model's parameter groups (one per learning rate)."""
         return torch.optim.Adam(self.model.param_groups(self.cfg), betas=(0.9, 0.99), eps=1e-15)
+
+    def make_pixel_sampler(self) -> ErrorGuidedPixels:
+        """A fresh sampler of training pixels (``sampling.error_*``); each stage gets one."""
+        sc = self.cfg.sampling
+        return ErrorGuidedPixels(self.n_img, self.h, self.w, sc.error_tile, sc.error_frac,
+                                 sc.error_decay, self.device)
 
     def set_resolution(self, res: int) -> None:
         """Resample the SDF grid to ``res`` and reset its optimiser state."""
@@ -136,11 +145,22 @@ class ShapeTrainer:
     # ------------------------------------------------------------------ one step
     def pixel_batch(self, n: int, gen: torch.Generator
                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``n`` random training pixels drawn with ``gen``: ray origins and directions
-        ``(n, 3)`` (unit frame), the photos' linear RGB ``(n, 3)`` there and the photo of each
-        ``(n,)`` (long)."""
-        cam, pix = random_pixels(n, self.n_img, self.h, self.w, generator=gen,
-                                 device=self.device)
+        """``n`` uniformly random training pixels drawn with ``gen``: ray origins and
+        directions ``(n, 3)`` (unit frame), the photos' linear RGB ``(n, 3)`` there and the
+        photo of each ``(n,)`` (long)."""
+        return self.rays_of(*random_pixels(n, self.n_img, self.h, self.w, generator=gen,
+                                           device=self.device))
+
+    def train_batch(self, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor,
+                                           torch.Tensor]:
+        """As :meth:`pixel_batch`, drawn by :attr:`pixels` with the training RNG: a share
+        ``sampling.error_frac`` where the fit is worst. Report the batch's per-pixel errors
+        with ``self.pixels.feedback``."""
+        return self.rays_of(*self.pixels.draw(n, self.gen))
+
+    def rays_of(self, cam: torch.Tensor, pix: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Rays, photo colours and photo index of pixels ``pix (n, 2)`` in photos ``cam``."""
         pi = pix.long()
         target = self.images[(cam * self.h + pi[:, 1]) * self.w + pi[:, 0]]
         o, d = pixel_rays(self.cams, cam, pix)
@@ -156,11 +176,12 @@ class ShapeTrainer:
         for g in self.opt.param_groups:
             g["lr"] = g.setdefault("base_lr", g["lr"]) * lrf
         light_switch.maybe_decide_occlusion(self)
-        o, d, target, cam = self.pixel_batch(cfg.sampling.rays, self.gen)
+        o, d, target, cam = self.train_batch(cfg.sampling.rays)
         m.env.prepare()
         out = render_rays(m, o, d, s, cfg, train=True, generator=self.gen)
         out["rgb"] = as_photographed(m, out["rgb"], cam)
         loss, t = objective(self, out, target)
+        self.pixels.feedback(losses.pixel_error(out["rgb"], target, cfg.loss.color_space))
         self.opt.zero_grad(set_to_none=True)
         if not torch.isfinite(loss):
             # never let one bad batch poison the grids (Adam would spread the NaN everywhere)
