@@ -147,6 +147,23 @@ def test_eval_of_a_stage2_run(tmp_path, capsys):
     assert abs(psnr_png - m["novel_view"]["psnr"]) < 0.5
     assert (out / "normals_r_000.png").is_file() and not (out / "render_r_001.png").exists()
     assert "novel views PSNR" in capsys.readouterr().out
+    # a relight split (the test views under a map, here the scene's own): rendered and scored
+    # by default, skipped with material_relight=false, which leaves the other numbers alone
+    import shutil
+
+    shutil.copytree(scene / "test", scene / "test_relight_same")
+    shutil.copy(scene / "transforms_test.json", scene / "transforms_test_relight_same.json")
+    shutil.copy(scene / "gt" / "envmap.exr", scene / "gt" / "envmap_same.exr")
+    with_relight, without = tmp_path / "eval_r", tmp_path / "eval_nr"
+    assert main(["eval", str(run), "material_views=1", "images=0", "--out",
+                 str(with_relight)]) == 0
+    assert main(["eval", str(run), "material_views=1", "images=0", "material_relight=false",
+                 "--out", str(without)]) == 0
+    mr = json.loads((with_relight / "metrics.json").read_text())
+    mn = json.loads((without / "metrics.json").read_text())
+    assert math.isfinite(mr["relight"]["same"]["psnr"]) and mn["relight"] == {}
+    assert mn["novel_view"] == mr["novel_view"] and mn["materials"] == mr["materials"]
+    capsys.readouterr()
     # a bad setting is a one-line config error
     assert main(["eval", str(run), "material_views=0", "--out", str(out)]) == 2
     assert "material_views" in capsys.readouterr().err

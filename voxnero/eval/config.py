@@ -56,6 +56,10 @@ class EvalConfig:
     material_noise_share: float = 0.1
     """Stage-2 runs: the noise share of the error at which passes stop (noise then costs at
     most 0.46 dB of PSNR)."""
+    material_relight: bool = True
+    """Stage-2 runs: also render the views under the scene's relight maps
+    (``test_relight_<env>``). They cost two thirds or more of a stage-2 evaluation; false
+    scores the novel views and material maps alone (the same numbers as with them)."""
     material_subpixels: int = 16
     """Stage-2 runs: stratified points per pixel averaged in linear radiance, the box filter the
     photos were made with (the samples above are split among them; 1 = pixel centres)."""

@@ -58,7 +58,8 @@ def stage2_metrics(run: Path, scene_path: Path, cfg, split) -> tuple[dict, dict]
     res = evaluate_scene(scene_path, geom, asset.field, env, spp, indirect, visibility,
                          views=cfg.material_views, out_dir=None, log=lambda _: None,
                          subpixels=cfg.material_subpixels, passes=cfg.material_passes,
-                         noise_share=cfg.material_noise_share, diffuse=asset.diffuse)
+                         noise_share=cfg.material_noise_share, diffuse=asset.diffuse,
+                         relight=cfg.material_relight)
     if not res:
         return {"novel_view": "not evaluated: the scene has no test split"}, {}
     res.update(asset=str(run / "model.glb"), indirect=indirect, visibility=visibility)

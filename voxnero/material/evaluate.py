@@ -218,8 +218,8 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
                    spp: Strategies, indirect: bool | str, visibility: bool = True,
                    views: int = -1, out_dir: str | Path | None = None,
                    log=print, subpixels: int = 4, bounces: Bounces | None = None,
-                   passes: int = 1, noise_share: float = 0.1, diffuse: str = "weighted"
-                   ) -> dict[str, Any]:
+                   passes: int = 1, noise_share: float = 0.1, diffuse: str = "weighted",
+                   relight: bool = True) -> dict[str, Any]:
     """Novel-view, relighting and material-map metrics on a scene's test views.
 
     Args:
@@ -237,6 +237,7 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
             renders of ``spp``, stopped once their noise is ``noise_share`` of the error in the
             scored pixels (:func:`render_converged`); its relit renders use as many passes.
         diffuse: the BRDF's diffuse convention (:func:`render_view`).
+        relight: also render the relight splits (``res["relight"]`` stays empty without).
 
     Returns:
         Metrics dict (JSON-friendly); empty if the scene has no test split.
@@ -251,7 +252,7 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
     have = available_splits(root)
     if "test" not in have:
         return {}
-    relights = [s for s in have if s.startswith("test_relight_")
+    relights = [s for s in have if relight and s.startswith("test_relight_")
                 and (root / "gt" / f"envmap_{s[len('test_relight_'):]}.exr").is_file()]
     scene = load_scene(root, splits=("test", *relights), eval_extras=True)
     test = scene.split("test")
