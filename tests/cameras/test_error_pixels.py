@@ -66,17 +66,18 @@ def test_feedback_moves_a_tile_by_decay_of_the_gap():
 
 @settings(max_examples=40, deadline=None)
 @given(h=st.integers(1, 23), w=st.integers(1, 23), tile=st.integers(1, 9),
-       seed=st.integers(0, 2**31 - 1))
-def test_pixels_lie_in_their_tile_and_the_image(h, w, tile, seed):
-    s = ErrorGuidedPixels(3, h, w, tile=tile, frac=0.7)
+       seed=st.integers(0, 2**31 - 1), subpixel=st.booleans())
+def test_pixels_lie_in_their_tile_and_the_image(h, w, tile, seed, subpixel):
+    s = ErrorGuidedPixels(3, h, w, tile=tile, frac=0.7, subpixel=subpixel)
     gen = torch.Generator().manual_seed(seed)
     cam, pix = s.draw(64, gen)
     s.feedback(torch.rand(64, generator=gen))
     cam, pix = s.draw(256, gen)
     assert cam.min() >= 0 and cam.max() < 3
-    assert (pix[:, 0] > 0).all() and (pix[:, 0] < w).all()
-    assert (pix[:, 1] > 0).all() and (pix[:, 1] < h).all()
-    assert torch.equal(pix - 0.5, (pix - 0.5).floor())  # pixel centres
+    assert (pix[:, 0] >= 0).all() and (pix[:, 0] < w).all()
+    assert (pix[:, 1] >= 0).all() and (pix[:, 1] < h).all()
+    if not subpixel:
+        assert torch.equal(pix - 0.5, (pix - 0.5).floor())  # pixel centres
     t = s.tiles_of(cam, pix)
     assert t.min() >= 0 and t.max() < s.err.numel()
 
@@ -98,3 +99,17 @@ def test_state_round_trip_draws_the_same_pixels():
 def test_bad_settings_are_refused(bad):
     with pytest.raises(ValueError):
         ErrorGuidedPixels(1, 8, 8, **bad)
+
+
+def test_subpixel_points_cover_the_pixel_uniformly():
+    """Both parts of a batch (uniform and error-guided) put their points uniformly inside the
+    pixel: the fractional part has mean 1/2 and variance 1/12 per axis."""
+    s = ErrorGuidedPixels(2, 8, 8, tile=4, frac=0.5, subpixel=True)
+    gen = torch.Generator().manual_seed(0)
+    s.draw(100, gen)
+    s.feedback(torch.rand(100, generator=gen))
+    _, pix = s.draw(40_000, gen)
+    for part in (pix[:20_000], pix[20_000:]):
+        f = part - part.floor()
+        assert torch.allclose(f.mean(0), torch.tensor([0.5, 0.5]), atol=0.01)
+        assert torch.allclose(f.var(0), torch.tensor([1 / 12, 1 / 12]), atol=0.005)

@@ -32,16 +32,19 @@ class ErrorGuidedPixels:
         tile: tile side in pixels (the last row and column of tiles may be narrower).
         frac: share of each batch drawn from the error map (0 = uniform sampling).
         decay: weight of a new measurement in a tile's running error (1 = replace).
+        subpixel: draw a uniform point inside each pixel (the box filter of photos whose pixel
+            is the mean over its area) instead of its centre.
         device: device of the map and of the draws.
     """
 
     def __init__(self, n_cams: int, height: int, width: int, tile: int = 8, frac: float = 0.5,
-                 decay: float = 0.5, device: torch.device | str = "cpu"):
+                 decay: float = 0.5, subpixel: bool = False,
+                 device: torch.device | str = "cpu"):
         if tile < 1 or not 0.0 <= frac <= 1.0 or not 0.0 < decay <= 1.0:
             raise ValueError(f"tile ≥ 1, 0 ≤ frac ≤ 1 and 0 < decay ≤ 1 (got {tile}, {frac}, "
                              f"{decay})")
         self.n_cams, self.h, self.w, self.tile = n_cams, height, width, tile
-        self.frac, self.decay = frac, decay
+        self.frac, self.decay, self.subpixel = frac, decay, subpixel
         self.th, self.tw = math.ceil(height / tile), math.ceil(width / tile)
         self.err = torch.zeros(n_cams * self.th * self.tw, device=device)
         """``(n_cams · th · tw,)`` running error per tile (row-major per photo); all equal
@@ -56,12 +59,13 @@ class ErrorGuidedPixels:
 
     def draw(self, n: int, generator: torch.Generator | None = None
              ) -> tuple[torch.Tensor, torch.Tensor]:
-        """``n`` pixels: ``cam (n,)`` long and ``pix (n, 2)`` pixel centres; the first
+        """``n`` pixels: ``cam (n,)`` long and ``pix (n, 2)`` (pixel centres, or uniform points
+        inside the pixels with ``subpixel``); the first
         ``n − round(frac · n)`` uniform, the rest from tiles in proportion to their error and
         uniform inside the tile. Remembered for :meth:`feedback`."""
         n_err = round(self.frac * n) if self.measured else 0
         cam, pix = random_pixels(n - n_err, self.n_cams, self.h, self.w, generator=generator,
-                                 device=self.err.device)
+                                 jitter=self.subpixel, device=self.err.device)
         if n_err > 0:
             kw = dict(generator=generator, device=self.err.device)
             weights = self.err if float(self.err.sum()) > 0 else torch.ones_like(self.err)
@@ -71,8 +75,9 @@ class ErrorGuidedPixels:
             u = torch.rand((n_err, 2), **kw)
             x = x0 + (u[:, 0] * (self.w - x0).clamp(max=self.tile)).long()
             y = y0 + (u[:, 1] * (self.h - y0).clamp(max=self.tile)).long()
+            off = torch.rand((n_err, 2), **kw) if self.subpixel else 0.5
             cam = torch.cat([cam, c])
-            pix = torch.cat([pix, torch.stack([x, y], -1).to(torch.float32) + 0.5])
+            pix = torch.cat([pix, torch.stack([x, y], -1).to(torch.float32) + off])
         self._last = self.tiles_of(cam, pix)
         return cam, pix
 

@@ -202,6 +202,9 @@ class SamplingConfig:
     """Tile side in pixels of the error map."""
     error_decay: float = 0.5
     """Weight of a new measurement in a tile's running error."""
+    subpixel: bool = False
+    """Training rays through a uniform point inside their pixel (the photos' box filter: a
+    pixel is the mean over its area) instead of its centre."""
 
 
 @dataclass

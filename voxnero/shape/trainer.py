@@ -107,7 +107,7 @@ class ShapeTrainer:
         """A fresh sampler of training pixels (``sampling.error_*``); each stage gets one."""
         sc = self.cfg.sampling
         return ErrorGuidedPixels(self.n_img, self.h, self.w, sc.error_tile, sc.error_frac,
-                                 sc.error_decay, self.device)
+                                 sc.error_decay, sc.subpixel, self.device)
 
     def set_resolution(self, res: int) -> None:
         """Resample the SDF grid to ``res`` and reset its optimiser state."""
