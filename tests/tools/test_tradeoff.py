@@ -112,9 +112,11 @@ def test_plot_is_a_png_of_the_requested_size(tmp_path):
 
     with Image.open(tmp_path / "a.png") as im:
         im.verify()
-    # no stage-2 points: the PSNR panel says so instead of failing
-    T.write_plot(T.summarise([_row("s", "preview", "preview", "", 0, 10.0, 0.01)]),
-                 tmp_path / "c.png")
+    # no stage-2 points: the second panel shows the normal error instead of an empty PSNR
+    stage1 = T.summarise([_row("s", "preview", "preview", "", 0, 10.0, 0.01)])
+    assert [m for m, _ in T.plot_panels(stage1)] == ["chamfer", "normal_deg"]
+    assert [m for m, _ in T.plot_panels(summ)] == ["chamfer", "psnr"]
+    T.write_plot(stage1, tmp_path / "c.png")
     assert _png_size(tmp_path / "c.png") == (1100, 450)
 
 

@@ -37,6 +37,7 @@ from tools.tradeoff.report import (
     is_done,
     merge_rows,
     parse_markdown,
+    plot_panels,
     read_csv,
     render_markdown,
     replace_between_markers,
@@ -64,7 +65,8 @@ __all__ = [
     "CheckResult", "ChildResult", "Point", "Runner", "Summary", "Task", "_machine_note", "_num",
     "_slug", "check", "child_env", "compare", "is_done", "kill_children", "load_reference",
     "load_spec", "main", "merge_rows", "parse_markdown", "parse_point", "plan",
-    "points_for_stage", "read_csv", "render_check", "render_markdown", "replace_between_markers",
+    "plot_panels", "points_for_stage", "read_csv", "render_check", "render_markdown",
+    "replace_between_markers",
     "resolve_points", "row_key", "run_child", "summarise", "sweep", "update_readme", "write_csv",
     "write_outputs", "write_plot",
 ]

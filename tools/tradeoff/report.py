@@ -190,9 +190,19 @@ def _short(name: str, n: int = 28) -> str:
     return name if len(name) <= n else name[:n - 1] + "…"
 
 
+def plot_panels(summaries: Sequence[Summary]) -> list[tuple[str, str]]:
+    """The plot's two panels as ``(metric, axis label)``: Chamfer, then the novel-view PSNR
+    when any point has one (stage 2), else the normal error (a stage-1 sweep)."""
+    has_psnr = any(not math.isnan(s.values.get("psnr", math.nan)) for s in summaries)
+    second = (("psnr", "novel-view PSNR dB (higher is better)") if has_psnr
+              else ("normal_deg", "normal error ° (lower is better)"))
+    return [("chamfer", "Chamfer (lower is better)"), second]
+
+
 def write_plot(summaries: Sequence[Summary], path: Path, size: tuple[float, float] = (11, 4.5),
                dpi: int = 100) -> None:
-    """``tradeoff.png``: time vs Chamfer and time vs PSNR, log time, one marker per scene.
+    """``tradeoff.png``: time vs Chamfer and time vs PSNR (the normal error for a stage-1
+    sweep, :func:`plot_panels`), log time, one marker per scene.
 
     Presets are large filled markers with their name in bold beside them; other points small,
     hollow, with their name in small grey type. The image is ``size × dpi`` pixels exactly
@@ -207,8 +217,7 @@ def write_plot(summaries: Sequence[Summary], path: Path, size: tuple[float, floa
     markers = ["o", "s", "^", "D", "v", "P", "X", "*"]
     scenes = list(dict.fromkeys(s.scene for s in summaries))
     fig, axes = plt.subplots(1, 2, figsize=size, dpi=dpi)
-    for ax, metric, label in ((axes[0], "chamfer", "Chamfer (lower is better)"),
-                              (axes[1], "psnr", "novel-view PSNR dB (higher is better)")):
+    for ax, (metric, label) in zip(axes, plot_panels(summaries), strict=True):
         any_pt = False
         for i, sc in enumerate(scenes):
             mk = markers[i % len(markers)]
