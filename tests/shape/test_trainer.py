@@ -77,21 +77,25 @@ def test_reconstructs_sphere_radius_and_chamfer(scene, tmp_path):
     assert (tmp_path / "log.jsonl").is_file()
 
 
-def test_interrupt_and_resume(scene, tmp_path):
-    cfg = _cfg(40)
-    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
-    calls = {"n": 0}
-    orig = tr.train_step
+def _run_interrupted(tr: ShapeTrainer, at: int) -> None:
+    """Run ``tr`` with a Ctrl-C raised at its ``at``-th step (the run checkpoints and stops)."""
+    orig, calls = tr.train_step, {"n": 0}
 
     def flaky():
         calls["n"] += 1
-        if calls["n"] == 15:
+        if calls["n"] == at:
             raise KeyboardInterrupt
         return orig()
 
     tr.train_step = flaky
     with pytest.raises(KeyboardInterrupt):
         tr.run()
+
+
+def test_interrupt_and_resume(scene, tmp_path):
+    cfg = _cfg(40)
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
+    _run_interrupted(tr, 15)
     assert (tmp_path / CKPT).is_file()
     ck = torch.load(tmp_path / CKPT, weights_only=False)
     assert ck["step"] == 14
@@ -485,17 +489,7 @@ def test_error_guided_run_resumes_identically(scene, tmp_path):
     straight = ShapeTrainer(cfg, scene, tmp_path / "a", progress=False, log=lambda s: None)
     straight.run()
     tr = ShapeTrainer(cfg, scene, tmp_path / "b", progress=False, log=lambda s: None)
-    orig, calls = tr.train_step, {"n": 0}
-
-    def flaky():
-        calls["n"] += 1
-        if calls["n"] == 9:
-            raise KeyboardInterrupt
-        return orig()
-
-    tr.train_step = flaky
-    with pytest.raises(KeyboardInterrupt):
-        tr.run()
+    _run_interrupted(tr, 9)
     assert tr.pixels.measured and float(tr.pixels.err.std()) > 0  # the map was in use
     resumed = ShapeTrainer(cfg, scene, tmp_path / "b", progress=False, log=lambda s: None)
     resumed.run()

@@ -68,8 +68,10 @@ class ErrorGuidedPixels:
                                  jitter=self.subpixel, device=self.err.device)
         if n_err > 0:
             kw = dict(generator=generator, device=self.err.device)
-            weights = self.err if float(self.err.sum()) > 0 else torch.ones_like(self.err)
-            t = torch.multinomial(weights, n_err, replacement=True, generator=generator)
+            # a floor far below any measured error keeps an all-zero map drawable without
+            # reading it back to the host (a device sync per step on CUDA)
+            t = torch.multinomial(self.err + 1e-30, n_err, replacement=True,
+                                  generator=generator)
             c, r = t // (self.th * self.tw), t % (self.th * self.tw)
             x0, y0 = (r % self.tw) * self.tile, (r // self.tw) * self.tile
             u = torch.rand((n_err, 2), **kw)
@@ -92,8 +94,8 @@ class ErrorGuidedPixels:
             self.measured = True
         s = torch.zeros_like(self.err).index_add_(0, t, e)
         c = torch.zeros_like(self.err).index_add_(0, t, torch.ones_like(e))
-        seen = c > 0
-        self.err[seen] += self.decay * (s[seen] / c[seen] - self.err[seen])
+        self.err.copy_(torch.where(c > 0, self.err + self.decay * (s / c.clamp(min=1) - self.err),
+                                   self.err))
         self._last = None
 
     def state_dict(self) -> dict:

@@ -44,24 +44,30 @@ def charbonnier(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-3) -> 
     return (torch.sqrt((pred - target) ** 2 + eps * eps) - eps).mean()
 
 
+def compared(pred: torch.Tensor, target: torch.Tensor, space: str = "srgb"
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Linear ``pred`` and ``target (N, 3)`` as the colour terms compare them: the camera's
+    clipping applied (:func:`camera_response`), then sRGB-encoded (perceptually even, as the
+    photos were stored; ``pred`` continued above 1) or left linear."""
+    p = camera_response(pred, target)
+    if space == "srgb":
+        return encode_unclipped(p), linear_to_srgb(target)
+    return p, target
+
+
 def color_loss(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-3,
                space: str = "srgb") -> torch.Tensor:
     """Charbonnier colour loss between linear ``pred (N, 3)`` and linear ``target (N, 3)``,
-    compared in sRGB (perceptually even, as the photos were stored) or linear space."""
-    p = camera_response(pred, target)
-    if space == "srgb":
-        return charbonnier(encode_unclipped(p), linear_to_srgb(target), eps)
-    return charbonnier(p, target, eps)
+    compared in sRGB or linear space (:func:`compared`)."""
+    return charbonnier(*compared(pred, target, space), eps)
 
 
 @torch.no_grad()
 def pixel_error(pred: torch.Tensor, target: torch.Tensor, space: str = "srgb") -> torch.Tensor:
     """``(N,)`` mean absolute colour error per pixel of linear ``pred`` and ``target (N, 3)``,
     in the space :func:`color_loss` compares them (no gradient: it steers the sampling)."""
-    p = camera_response(pred, target)
-    if space == "srgb":
-        p, target = encode_unclipped(p), linear_to_srgb(target)
-    return (p - target).abs().mean(-1)
+    p, t = compared(pred, target, space)
+    return (p - t).abs().mean(-1)
 
 
 def eikonal(grad: torch.Tensor) -> torch.Tensor:
