@@ -17,7 +17,7 @@ import torch
 
 from voxnero.config import from_dict
 from voxnero.eval.chamfer import chamfer_points
-from voxnero.shape import starts
+from voxnero.shape import schedules, starts
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.trainer import CKPT, ShapeTrainer
 
@@ -337,9 +337,45 @@ def test_coarse_start_carves_the_sphere_and_fits_the_grid_to_it(scene, tmp_path)
     assert tr2.model.sdf.res == tr.model.sdf.res
 
 
+def test_coarse_start_coarse_to_fine_sdf(scene, tmp_path):
+    """With ``coarse.sdf_first`` < 1 the SDF stage after a coarse start begins on the coarser
+    grid over the same fitted box, with a step of the same fraction of its (larger) voxel, and
+    is upsampled to ``sdf_res`` at ``sdf_upsample_at`` of the steps, the surface kept."""
+    torch.manual_seed(0)
+    cfg = _coarse_cfg(250, iters=10)
+    cfg.coarse.sdf_first, cfg.coarse.sdf_upsample_at = 0.5, 0.3  # 48^3 after 24^3
+    seen: list[tuple[int, int, float]] = []
+    orig = ShapeTrainer.train_step
+
+    def recording(self):
+        g = next(g for g in self.opt.param_groups if g.get("name") == "sdf")
+        lr = g.get("base_lr", g["lr"])  # before the warm-up and decay
+        seen.append((self.step, self.model.sdf.res, lr / self.model.sdf.voxel))
+        return orig(self)
+
+    ShapeTrainer.train_step = recording
+    try:
+        tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
+        path = tr.run()
+    finally:
+        ShapeTrainer.train_step = orig
+    res = [r for _, r, _ in seen]
+    first, last = tr.cfg.grid.res  # sdf_res capped by the pixel footprint over the fitted box
+    assert first == 24 and 24 < last <= 48
+    assert res[:3] == [24, 24, 24] and res[-1] == last
+    k = res.index(last)
+    assert abs(seen[k][0] - schedules.at(0.3, tr.cfg)) <= 1  # within the step that upsamples
+    # the step in voxels does not change with the upsampling (lr per voxel: res, not res - 1)
+    assert seen[k][2] == pytest.approx(seen[k - 1][2], rel=0.03)
+    r = np.linalg.norm(_mesh_points(path), axis=1)
+    voxel_in = 2 * cfg.grid.bound / (cfg.coarse.res - 1) * tr.scene.norm.scale
+    assert abs(np.median(r) - RADIUS) < 2 * voxel_in, (np.median(r), voxel_in)
+
+
 def test_coarse_start_races_the_sphere_and_keeps_the_better_fit(scene, tmp_path):
     cfg = _coarse_cfg(150, iters=20)
     cfg.coarse.race = True
+    cfg.coarse.sdf_first = 1.0  # one grid: the lr below is not rescaled by an upsampling
     tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
     tr.run()
     dec = json.loads((tmp_path / "decisions.json").read_text())["start"]

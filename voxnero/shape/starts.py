@@ -208,7 +208,11 @@ def with_coarse_schedule(cfg: ShapeConfig) -> ShapeConfig:
     learning rate (finding 18). Apply it once, to the config as given (the trainer does): the
     learning-rate factor multiplies."""
     c = cfg.coarse
-    grid = replace(cfg.grid, res=[c.sdf_res], upsample_at=[])
+    first = max(4, round(c.sdf_res * c.sdf_first))
+    if first < c.sdf_res:
+        grid = replace(cfg.grid, res=[first, c.sdf_res], upsample_at=[c.sdf_upsample_at])
+    else:
+        grid = replace(cfg.grid, res=[c.sdf_res], upsample_at=[])
     if c.update_smooth > 0:
         grid = replace(grid, grad_smooth=0.0, update_smooth=c.update_smooth)
     return replace(cfg, neus=replace(cfg.neus, s_start=c.s_start),
