@@ -201,7 +201,8 @@ def coarse_start(tr: ShapeTrainer) -> None:
 
 def with_coarse_schedule(cfg: ShapeConfig) -> ShapeConfig:
     """The config of a start from the coarse stage's hull: the SDF stage begins sharp
-    (``coarse.s_start``), on one grid of ``coarse.sdf_res`` and with ``coarse.normal_smooth``,
+    (``coarse.s_start``), on ``coarse.sdf_res`` (first at ``coarse.sdf_first`` of it, upsampled
+    at ``coarse.sdf_upsample_at``: finding 24) and with ``coarse.normal_smooth``,
     since its surface is already near the object's (a blurry start erodes thin parts, a normal
     smoothness one voxel wide removes rods of that width: docs/STAGE1.md, finding 17); its
     steps are blurred by ``coarse.update_smooth`` at ``coarse.lr_sdf_factor`` times the SDF
@@ -209,10 +210,9 @@ def with_coarse_schedule(cfg: ShapeConfig) -> ShapeConfig:
     learning-rate factor multiplies."""
     c = cfg.coarse
     first = max(4, round(c.sdf_res * c.sdf_first))
-    if first < c.sdf_res:
-        grid = replace(cfg.grid, res=[first, c.sdf_res], upsample_at=[c.sdf_upsample_at])
-    else:
-        grid = replace(cfg.grid, res=[c.sdf_res], upsample_at=[])
+    two = first < c.sdf_res
+    grid = replace(cfg.grid, res=[first, c.sdf_res] if two else [c.sdf_res],
+                   upsample_at=[c.sdf_upsample_at] if two else [])
     if c.update_smooth > 0:
         grid = replace(grid, grad_smooth=0.0, update_smooth=c.update_smooth)
     return replace(cfg, neus=replace(cfg.neus, s_start=c.s_start),
