@@ -91,6 +91,7 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
          run: Any) -> None:
     """Train and write every output into ``run.staging`` (checkpoints into ``run.path``)."""
     import numpy as np
+    import open3d as o3d
     import torch
 
     from voxnero.asset.envmap import write_envmap
@@ -163,6 +164,9 @@ def _run(args: argparse.Namespace, cfg: Any, mesh_path: Path, scene_path: Path,
     env = trainer.env.image().detach().cpu()
     vid, tris, a, m, r = (t.cpu() for t in surface_materials(trainer.field, trainer.geom))
     mesh_in = cut_mesh(load_mesh(mesh_path), vid.numpy(), tris.numpy())  # input frame
+    if trainer.normals is not None:  # the learned shading normals (directions: any frame)
+        mesh_in.vertex_normals = o3d.utility.Vector3dVector(
+            trainer.geom.vertex_normals.detach().cpu().double().numpy()[vid.numpy()])
     tm = bake_textures(mesh_in, a.numpy(), m.numpy(), r.numpy(), cfg.texture_size)
     up = [float(x) for x in scene.up]
     write_glb(out / "model.glb", tm, sidecar={"scene_up": up, "scene": str(scene_path),

@@ -214,6 +214,36 @@ class RenderConfig:
 
 
 @dataclass
+class NormalsConfig:
+    """Shading normals learned on the fixed mesh (:mod:`voxnero.material.normals`)."""
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "lr": LEARNING_RATE, "rounds": at_least(0, 256), "prior": WEIGHT,
+        "start": Range(0.0, 1.0)}
+
+    refine: bool = False
+    """Learn the vertex normals (positions stay; the exports carry the learned ones). Stage 1's
+    normals are a few degrees off, which a mirror's reflections show and a fixed normal makes
+    the fit blur with roughness: the knot's ``standard`` mesh with the TRUE normals relights at
+    25.7 dB instead of 20.1 (roughness 0.05 for 0.03 instead of 0.16). Learned from the photos
+    the normals do not get there: at ``lr`` 2e-3 the knot's training fit gained 0.35 dB and its
+    test views 0.38 dB, its normal error went 2.70° -> 2.63°, and it relit 0.3 dB worse (mug:
+    −0.06 dB); at 1e-2 and 3e-2 the Monte Carlo gradients made the normals noisy and the fit
+    worse (docs/BENCHMARKS.md, session 25). So it is off: a user with a mirror may try it."""
+    lr: float = 2e-3
+    """Adam learning rate of the normals' parameters (decays with ``lr_decay``)."""
+    rounds: int = 8
+    """Neighbour-averaging rounds from the parameters to the correction (its smoothness along
+    the surface, in edges)."""
+    prior: float = 1e-3
+    """Weight of ``mean |n − n0|²`` (squared chord to stage 1's normal)."""
+    start: float = 0.3
+    """Fraction of ``iters`` from which the normals learn: after the materials' decisions
+    (``field.split_at`` and the metalness race) and the env map's upsampling, so that they do
+    not bend to explain a light or a material still far off."""
+
+
+@dataclass
 class MaterialConfig:
     """Stage 2: materials and lights on a fixed mesh."""
 
@@ -257,6 +287,7 @@ class MaterialConfig:
     field: FieldConfig = _field(default_factory=FieldConfig)
     light: LightConfig = _field(default_factory=LightConfig)
     render: RenderConfig = _field(default_factory=RenderConfig)
+    normals: NormalsConfig = _field(default_factory=NormalsConfig)
     texture_size: int = 1024
     """Side of the exported albedo / metallic-roughness textures (pixels)."""
     eval_views: int = -1

@@ -40,6 +40,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from voxnero.material.normals import mesh_edges
 from voxnero.material.surface import Geometry
 from voxnero.render.microfacet import raw_from_roughness, roughness_from_raw
 
@@ -115,10 +116,7 @@ class VertexMaterial(nn.Module):
         self._split = False
         self.register_load_state_dict_post_hook(
             lambda module, _keys: setattr(module, "_split", bool(module.region.any())))
-        f = geom.triangles
-        e = torch.cat([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        e = torch.unique(torch.sort(e, dim=1).values, dim=0)
-        self.register_buffer("edges", e, persistent=False)
+        self.register_buffer("edges", mesh_edges(geom.triangles), persistent=False)
 
     def forward(self, tri: Tensor, bary: Tensor, x: Tensor | None = None
                 ) -> tuple[Tensor, Tensor, Tensor]:

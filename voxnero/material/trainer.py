@@ -10,6 +10,7 @@ stops the run (:mod:`voxnero.safety.guard`). The physics lives in
     mean |srgb(clip(L_pred)) - srgb(L_target)|²  over object pixels (Monte Carlo L_pred)
   + mean |srgb(clip(env(d))) - srgb(L_target)|²  over background pixels (environment at infinity)
   + smooth · material smoothness + range_prior · (m (1 − m) + raw²) + env_smooth · TV(log env)
+  + normals.prior · mean |n − n0|²  (learned shading normals, :mod:`voxnero.material.normals`)
 
 Both sides are compared in sRGB after clipping the prediction to [0, 1], as the 8-bit
 training images were made (clipped highlights give no gradient above 1).
@@ -39,6 +40,7 @@ from voxnero.material.lights import (
     background_coverage,
     init_from_background,
 )
+from voxnero.material.normals import RefinedNormals
 from voxnero.material.regions import material_features, mesh_average, two_materials
 from voxnero.material.render import Bounces, Strategies, env_sampler, shade
 from voxnero.material.surface import Geometry, SurfaceCache
@@ -183,6 +185,9 @@ class MaterialTrainer:
         fc = cfg.field
         self.field = make_field(fc.kind, geom, fc.grid_res, fc.init_albedo, fc.init_metallic,
                                 fc.init_roughness).to(self.device)
+        nc = cfg.normals
+        self.normals = RefinedNormals(geom.vertex_normals, geom.triangles, nc.rounds).to(
+            self.device) if nc.refine else None
         self.heights = list(cfg.light.env_height)
         self.level = 0
         if env_init is None:
@@ -225,6 +230,21 @@ class MaterialTrainer:
     def _make_optimisers(self) -> None:
         self.opt_mat = torch.optim.Adam(self.field.parameters(), lr=self.cfg.lr_material)
         self.opt_env = torch.optim.Adam(self.env.parameters(), lr=self.cfg.lr_env)
+        self.opt_nrm = torch.optim.Adam(self.normals.parameters(), lr=self.cfg.normals.lr) \
+            if self.normals is not None else None
+
+    @property
+    def _normals_learn(self) -> bool:
+        """Whether this step's shading normals learn (``normals.refine`` from
+        ``normals.start``; never inside the materials' probe or the metalness race)."""
+        return self.normals is not None and not self._racing and \
+            self.step >= self.cfg.normals.start * self.cfg.iters
+
+    def _sync_normals(self) -> None:
+        """Put the learned normals (detached) into the geometry every render reads."""
+        if self.normals is not None:
+            with torch.no_grad():
+                self.geom.vertex_normals = self.normals()
 
     def _lr_factor(self) -> float:
         return self.cfg.lr_decay ** (self.step / max(self.cfg.iters, 1))
@@ -257,7 +277,9 @@ class MaterialTrainer:
 
         c = self.cache
         if not self.jitter:
-            return shade(self.geom, self.field, img, c.tri[idx], c.bary[idx], c.x[idx], c.n[idx],
+            n = self.geom.normals_at(c.tri[idx], c.bary[idx]) if self.normals is not None \
+                else c.n[idx]
+            return shade(self.geom, self.field, img, c.tri[idx], c.bary[idx], c.x[idx], n,
                          c.v[idx], self.spp, indirect, sampler, self.visibility, self.gen,
                          bounces=self.bounces, diffuse=self.cfg.render.diffuse)
         ci = idx.cpu()
@@ -282,6 +304,10 @@ class MaterialTrainer:
         indirect = IndirectLight(img, diffuse=self.cfg.render.diffuse) \
             if self.use_indirect else None
         sampler = env_sampler(img) if self.spp.env else None
+        normals = None
+        if self._normals_learn:  # every render of this step reads them through the geometry
+            normals = self.normals()
+            self.geom.vertex_normals = normals
         if cfg.render.decorrelate:
             # two independent estimates of the same pixels (see decorrelated_loss)
             pred = self.render_pixels(torch.cat([idx, idx]), img, indirect, sampler)
@@ -308,6 +334,8 @@ class MaterialTrainer:
             terms["range"] = fc.range_prior * (m * (1 - m)).mean()
         if cfg.light.env_smooth:
             terms["env_smooth"] = cfg.light.env_smooth * self.env.smoothness()
+        if normals is not None and cfg.normals.prior:
+            terms["normal_prior"] = cfg.normals.prior * self.normals.prior(normals)
         return terms
 
     def _smooth_weight(self) -> float:
@@ -470,7 +498,8 @@ class MaterialTrainer:
             e = torch.ones_like(target)
             for r in (0, 1):  # two independent estimates: (p1 - t)(p2 - t) has no variance term
                 pred = torch.cat([
-                    shade(self.geom, f, img, c.tri[j], c.bary[j], c.x[j], c.n[j], c.v[j], spp,
+                    shade(self.geom, f, img, c.tri[j], c.bary[j], c.x[j],
+                          self.geom.normals_at(c.tri[j], c.bary[j]), c.v[j], spp,
                           indirect, sampler, self.visibility,
                           torch.Generator().manual_seed(seed + 2 * i + r),
                           bounces=self.bounces, diffuse=self.cfg.render.diffuse)
@@ -512,17 +541,23 @@ class MaterialTrainer:
         self._maybe_split()
         self._maybe_relabel()
         f = self._lr_factor()
-        for opt, lr in ((self.opt_mat, self.cfg.lr_material), (self.opt_env, self.cfg.lr_env)):
+        opts = [(self.opt_mat, self.cfg.lr_material), (self.opt_env, self.cfg.lr_env)]
+        if self.opt_nrm is not None:
+            opts.append((self.opt_nrm, self.cfg.normals.lr))
+        for opt, lr in opts:
             for g in opt.param_groups:
                 g["lr"] = lr * f
+        learn_normals = self._normals_learn
         terms = self.loss_terms()
         loss = sum(terms.values())
-        self.opt_mat.zero_grad(set_to_none=True)
-        self.opt_env.zero_grad(set_to_none=True)
+        for opt, _ in opts:
+            opt.zero_grad(set_to_none=True)
         finite = bool(torch.isfinite(loss))
         if finite:
             loss.backward()
             params = [*self.field.parameters(), *self.env.parameters()]
+            if learn_normals:
+                params += list(self.normals.parameters())
             finite = all(bool(torch.isfinite(p.grad).all()) for p in params
                          if p.grad is not None)
         if finite:
@@ -533,9 +568,13 @@ class MaterialTrainer:
                 self.field.impose_metal()
             if not self._probing:
                 self._env_step()
+            if learn_normals:
+                self.opt_nrm.step()
         else:  # never let one bad batch poison the parameters: skip the update
-            self.opt_mat.zero_grad(set_to_none=True)
-            self.opt_env.zero_grad(set_to_none=True)
+            for opt, _ in opts:
+                opt.zero_grad(set_to_none=True)
+        if learn_normals:
+            self._sync_normals()
         self.guard.update(finite, self.step, last=self.step + 1 >= self.cfg.iters)
         self.step += 1
         out = {k: float(v.detach()) for k, v in terms.items()}
@@ -566,7 +605,8 @@ class MaterialTrainer:
             return "the training images hold NaN/Inf pixels (check the scene's image files)"
         if nonfinite([("x", c.x), ("n", c.n)]):
             return "the mesh has NaN/Inf vertices or degenerate triangles (check the mesh file)"
-        bad = nonfinite([*self.field.named_parameters(), *self.env.named_parameters()])
+        bad = nonfinite([*self.field.named_parameters(), *self.env.named_parameters(),
+                         *(self.normals.named_parameters() if self.normals is not None else [])])
         if bad:
             return (f"the {', '.join(bad[:3])} became NaN/Inf: lr_material={self.cfg.lr_material:g}"
                     f" or lr_env={self.cfg.lr_env:g} too high for this scene")
@@ -632,9 +672,26 @@ class MaterialTrainer:
         bar.close()
         if ckpt is not None and self.step > start:
             self.save(ckpt)
+        self._report_normals()
         last["seconds"] = time.perf_counter() - t0
         last["steps"] = self.step
         return last
+
+    def _report_normals(self) -> None:
+        """Log how far the learned shading normals moved from the mesh's own and record it in
+        the decisions (``materials.json``)."""
+        if self.normals is None:
+            self.decisions["normals"] = {"refined": False}
+            return
+        a = self.normals.angles_deg()
+        q = [float(v) for v in torch.quantile(a.float().cpu()[:: max(1, a.numel() // 100000)],
+                                             torch.tensor([0.5, 0.95, 1.0]))]
+        self.decisions["normals"] = {"refined": True, "from_step": int(math.ceil(
+            self.cfg.normals.start * self.cfg.iters)), "change_deg_median": round(q[0], 3),
+            "change_deg_p95": round(q[1], 3), "change_deg_max": round(q[2], 3)}
+        self.log(f"[material] shading normals learned from step "
+                 f"{self.decisions['normals']['from_step']}: {q[0]:.2f} deg from the mesh's "
+                 f"own (median; 95 % within {q[1]:.2f}, max {q[2]:.1f}); exported with the mesh")
 
     # ------------------------------------------------------------------ checkpoints
     def fingerprint(self) -> dict:
@@ -649,8 +706,9 @@ class MaterialTrainer:
             RunFolderError: the checkpoint's folder was removed during the run.
         """
         path = Path(path)
-        check_finite([*self.field.state_dict().items(), ("env", self.env.log_radiance)], path,
-                     NONFINITE_FIX)
+        check_finite([*self.field.state_dict().items(), ("env", self.env.log_radiance),
+                      *(self.normals.state_dict().items() if self.normals is not None else [])],
+                     path, NONFINITE_FIX)
         if not path.parent.is_dir():
             raise RunFolderError("the run folder was removed during the run", path=path.parent,
                                  fix="re-run the command (into this --out it starts over)")
@@ -674,12 +732,17 @@ class MaterialTrainer:
 
     def _state(self) -> dict[str, Any]:
         """Everything training resumes from (copies, not references)."""
-        return {"step": self.step, "level": self.level,
-                "field": {k: v.detach().clone() for k, v in self.field.state_dict().items()},
-                "env": self.env.log_radiance.detach().clone(),
-                "opt_mat": copy.deepcopy(self.opt_mat.state_dict()),
-                "opt_env": copy.deepcopy(self.opt_env.state_dict()),
-                "gen": self.gen.get_state()}
+        state = {"step": self.step, "level": self.level,
+                 "field": {k: v.detach().clone() for k, v in self.field.state_dict().items()},
+                 "env": self.env.log_radiance.detach().clone(),
+                 "opt_mat": copy.deepcopy(self.opt_mat.state_dict()),
+                 "opt_env": copy.deepcopy(self.opt_env.state_dict()),
+                 "gen": self.gen.get_state()}
+        if self.normals is not None:
+            state["normals"] = {k: v.detach().clone()
+                                for k, v in self.normals.state_dict().items()}
+            state["opt_nrm"] = copy.deepcopy(self.opt_nrm.state_dict())
+        return state
 
     def _restore(self, state: dict[str, Any]) -> None:
         """Return to a :meth:`_state` (or a loaded checkpoint)."""
@@ -689,4 +752,8 @@ class MaterialTrainer:
         self._make_optimisers()
         self.opt_mat.load_state_dict(copy.deepcopy(state["opt_mat"]))
         self.opt_env.load_state_dict(copy.deepcopy(state["opt_env"]))
+        if self.normals is not None and "normals" in state:
+            self.normals.load_state_dict(state["normals"])
+            self.opt_nrm.load_state_dict(copy.deepcopy(state["opt_nrm"]))
+            self._sync_normals()
         self.gen.set_state(state["gen"].cpu())
