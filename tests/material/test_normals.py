@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from tests.material.stage2_scene import sphere_geometry
-from voxnero.material.normals import RefinedNormals, mesh_edges
+from voxnero.material.normals import RefinedNormals
+from voxnero.mesh.normal_filter import mesh_edges
 
 
 def test_mesh_edges_of_a_tetrahedron_are_its_six_edges_once():

@@ -1,4 +1,4 @@
-"""The stage-1 mesh's vertex normals are the SDF field's (voxnero.shape.run_files.extract)."""
+"""The stage-1 mesh's vertex normals are the SDF field's, filtered (voxnero.shape.run_files)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.renderer import ShapeModel, Switches
-from voxnero.shape.run_files import extract
+from voxnero.shape.run_files import extract, field_normals
 
 
 def _angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -20,15 +20,18 @@ def _angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("res", [32, 48])
 def test_field_normals_of_a_sphere_grid_beat_the_triangles(res):
     """The initial grid is a sphere's SDF: the true normal at a vertex is radial. The field's
-    central differences must be within 0.3° on average (a sphere's SDF is smooth across cells)
-    and nearer the truth than the marching-cubes triangles' area-weighted normals, which the
-    mesh carried before."""
+    central differences are within 0.1° on average (measured 0.05° / 0.02°); the mesh's normals
+    after the edge-preserving filter within 0.4° (0.34° / 0.23°: averaging over an irregular
+    one-ring of a curved surface leans a little), both nearer the truth than the marching-cubes
+    triangles' area-weighted normals (0.89° / 0.59°), which the mesh carried before."""
     model = ShapeModel(ShapeConfig(), Switches(indirect=False, occlusion=False), res=res)
     mesh = extract(model, 2 * res)
     v = np.asarray(mesh.vertices)
-    ours = _angles_deg(np.asarray(mesh.vertex_normals), v)
     tri = o3d.geometry.TriangleMesh(mesh)
     tri.compute_vertex_normals()
-    theirs = _angles_deg(np.asarray(tri.vertex_normals), v)
-    assert ours.mean() < 0.3, ours.mean()
-    assert ours.mean() < theirs.mean(), (ours.mean(), theirs.mean())
+    theirs = _angles_deg(np.asarray(tri.vertex_normals), v).mean()
+    field = _angles_deg(field_normals(model, v, np.asarray(tri.vertex_normals)), v).mean()
+    ours = _angles_deg(np.asarray(mesh.vertex_normals), v).mean()
+    assert field < 0.1, field
+    assert ours < 0.4, ours
+    assert max(field, ours) < theirs, (field, ours, theirs)

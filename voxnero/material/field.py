@@ -40,8 +40,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from voxnero.material.normals import mesh_edges
 from voxnero.material.surface import Geometry
+from voxnero.mesh.normal_filter import mesh_edges
 from voxnero.render.microfacet import raw_from_roughness, roughness_from_raw
 
 SMOOTH_NORMS = ("l2", "l1")

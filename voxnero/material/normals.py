@@ -28,20 +28,7 @@ import torch
 from torch import Tensor, nn
 
 from voxnero.material.regions import mesh_average
-
-
-def mesh_edges(triangles: Tensor) -> Tensor:
-    """Unique undirected edges of a triangle mesh.
-
-    Args:
-        triangles: (F, 3) long vertex indices.
-
-    Returns:
-        (E, 2) long vertex pairs, each edge once, smaller index first.
-    """
-    f = triangles
-    e = torch.cat([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    return torch.unique(torch.sort(e, dim=1).values, dim=0)
+from voxnero.mesh.normal_filter import mesh_edges
 
 
 class RefinedNormals(nn.Module):

@@ -171,6 +171,14 @@ def write_decisions(tr: ShapeTrainer) -> Path:
 FIELD_NORMAL_STEP = 1.0
 """Half-step (voxels of the SDF grid) of the central differences that give the mesh's vertex
 normals (:func:`field_normals`)."""
+NORMAL_FILTER_ROUNDS = 5
+NORMAL_FILTER_SIGMA_DEG = 15.0
+"""Rounds and angle scale of the edge-preserving filter of the field normals
+(:func:`voxnero.mesh.normal_filter.bilateral_normals`). On session 23's ``standard`` corpus
+meshes: normal error median 7.08° -> 6.66° (knot 2.35° -> 1.98°, table 7.41° -> 6.76°; the
+chair 5.64° -> 5.73°), and stage 2 relit the knot 1.6 dB better (docs/BENCHMARKS.md, session
+25). The first setting measured; 1-3 rounds of plain averaging (6.99°, 6.90°, the gear worse)
+and narrower, longer filters traded the knot against the chair and the frame."""
 
 
 @torch.no_grad()
@@ -182,8 +190,8 @@ def field_normals(model: ShapeModel, vertices: np.ndarray, fallback: np.ndarray)
     triangles cut the trilinear cells into facets whose normals wobble by a degree or two, while
     the differences see the field over a voxel either side. On session 23's ``standard`` corpus
     meshes: normal error median 7.50° -> 7.08° (knot 2.70° -> 2.35°, pretzel 2.49° -> 2.14°;
-    analytic gradients of the trilinear cells: 7.69°, half-step 2 voxels: 7.41°, with the bowl
-    and the gear worse; docs/BENCHMARKS.md, session 25).
+    analytic gradients of the trilinear cells: 7.74°; half-step 2 voxels: 6.91°, but the gear
+    7.56° -> 9.57° and the frame 8.80° -> 9.36°, blunted edges; docs/BENCHMARKS.md, session 25).
 
     Args:
         model: the shape model (its SDF grid, unit frame).
@@ -205,11 +213,13 @@ def field_normals(model: ShapeModel, vertices: np.ndarray, fallback: np.ndarray)
 def extract(model: ShapeModel, res: int | None = None, clean: bool = True):
     """Marching cubes of a model's SDF grid (resampled to ``res``), unit frame; an Open3D
     triangle mesh, cleaned (:func:`voxnero.mesh.cleanup.clean_mesh`) unless ``clean`` is False,
-    whose vertex normals are the field's (:func:`field_normals`)."""
+    whose vertex normals are the field's (:func:`field_normals`) after an edge-preserving filter
+    (:data:`NORMAL_FILTER_ROUNDS`)."""
     import open3d as o3d
 
     from voxnero.mesh.cleanup import clean_mesh
     from voxnero.mesh.extract import extract_mesh
+    from voxnero.mesh.normal_filter import bilateral_normals
 
     g = model.sdf.grid.data
     if res and res != g.shape[-1]:
@@ -217,8 +227,10 @@ def extract(model: ShapeModel, res: int | None = None, clean: bool = True):
     mesh = extract_mesh(g[0].cpu(), model.sdf.bounds.cpu())
     mesh = clean_mesh(mesh) if clean else mesh
     if len(mesh.vertices):
-        mesh.vertex_normals = o3d.utility.Vector3dVector(field_normals(
-            model, np.asarray(mesh.vertices), np.asarray(mesh.vertex_normals)))
+        v, f = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+        n = field_normals(model, v, np.asarray(mesh.vertex_normals))
+        n = bilateral_normals(v, f, n, NORMAL_FILTER_ROUNDS, NORMAL_FILTER_SIGMA_DEG)
+        mesh.vertex_normals = o3d.utility.Vector3dVector(n)
     return mesh
 
 
