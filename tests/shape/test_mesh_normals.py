@@ -8,7 +8,7 @@ import pytest
 
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.renderer import ShapeModel, Switches
-from voxnero.shape.run_files import extract, field_normals
+from voxnero.shape.run_files import extract, field_normals, set_mesh_normals
 
 
 def _angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -26,6 +26,7 @@ def test_field_normals_of_a_sphere_grid_beat_the_triangles(res):
     triangles' area-weighted normals (0.89° / 0.59°), which the mesh carried before."""
     model = ShapeModel(ShapeConfig(), Switches(indirect=False, occlusion=False), res=res)
     mesh = extract(model, 2 * res)
+    set_mesh_normals(model, mesh)
     v = np.asarray(mesh.vertices)
     tri = o3d.geometry.TriangleMesh(mesh)
     tri.compute_vertex_normals()

@@ -108,6 +108,15 @@ def test_interrupt_and_resume(scene, tmp_path):
     tr3 = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
     tr3.run()
     assert tr3.step == 40 and (tmp_path / "mesh.ply").is_file()
+    # the written mesh carries the field's filtered normals, not its triangles'
+    from voxnero.mesh.io import load_mesh
+    from voxnero.shape.run_files import set_mesh_normals
+
+    written = load_mesh(tmp_path / "mesh.ply", scene.norm)
+    expect = tr3.extract(cfg.mesh_res)
+    set_mesh_normals(tr3.model, expect)
+    assert np.allclose(np.asarray(written.vertex_normals), np.asarray(expect.vertex_normals),
+                       atol=1e-5)
     steps = [line for line in (tmp_path / "log.jsonl").read_text().splitlines()]
     assert len(steps) > 0
 

@@ -24,6 +24,7 @@ only shading sees the normals; the exports carry them as the mesh's vertex norma
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -51,18 +52,15 @@ class RefinedNormals(nn.Module):
         r = mesh_average(self.theta, self.edges, self.rounds)
         return torch.nn.functional.normalize(self.base + r, dim=-1)
 
-    @staticmethod
-    def deviation(normals: Tensor, base: Tensor) -> Tensor:
-        """(V,) squared chord ``|n − n0|²`` = 2 (1 − cos angle) between unit normals."""
-        return ((normals - base) ** 2).sum(-1)
-
     def prior(self, normals: Tensor) -> Tensor:
-        """Mean squared chord of ``normals`` (:meth:`forward`'s output) from the mesh's own."""
-        return self.deviation(normals, self.base).mean()
+        """Mean squared chord ``|n − n0|²`` = 2 (1 − cos angle) of ``normals`` (:meth:`forward`'s
+        output) from the mesh's own."""
+        return ((normals - self.base) ** 2).sum(-1).mean()
 
     @torch.no_grad()
-    def angles_deg(self) -> Tensor:
+    def angles_deg(self) -> np.ndarray:
         """(V,) angle in degrees of each refined normal from the mesh's own."""
-        n = self.forward()
-        cross = torch.linalg.norm(torch.cross(n, self.base, dim=-1), dim=-1)
-        return torch.rad2deg(torch.atan2(cross, (n * self.base).sum(-1)))
+        from voxnero.eval.normals import angle_deg
+
+        return angle_deg(self.forward().double().cpu().numpy(),
+                         self.base.double().cpu().numpy())

@@ -26,6 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from voxnero.errors import RunFolderError
@@ -246,6 +247,13 @@ class MaterialTrainer:
             with torch.no_grad():
                 self.geom.vertex_normals = self.normals()
 
+    def _cached_normals(self, idx: torch.Tensor) -> torch.Tensor:
+        """(B, 3) shading normals at cached pixel-centre hits ``idx``: the cache's, or with
+        ``normals.refine`` the current learned ones."""
+        c = self.cache
+        return c.n[idx] if self.normals is None else self.geom.normals_at(c.tri[idx],
+                                                                          c.bary[idx])
+
     def _lr_factor(self) -> float:
         return self.cfg.lr_decay ** (self.step / max(self.cfg.iters, 1))
 
@@ -277,9 +285,8 @@ class MaterialTrainer:
 
         c = self.cache
         if not self.jitter:
-            n = self.geom.normals_at(c.tri[idx], c.bary[idx]) if self.normals is not None \
-                else c.n[idx]
-            return shade(self.geom, self.field, img, c.tri[idx], c.bary[idx], c.x[idx], n,
+            return shade(self.geom, self.field, img, c.tri[idx], c.bary[idx], c.x[idx],
+                         self._cached_normals(idx),
                          c.v[idx], self.spp, indirect, sampler, self.visibility, self.gen,
                          bounces=self.bounces, diffuse=self.cfg.render.diffuse)
         ci = idx.cpu()
@@ -499,7 +506,7 @@ class MaterialTrainer:
             for r in (0, 1):  # two independent estimates: (p1 - t)(p2 - t) has no variance term
                 pred = torch.cat([
                     shade(self.geom, f, img, c.tri[j], c.bary[j], c.x[j],
-                          self.geom.normals_at(c.tri[j], c.bary[j]), c.v[j], spp,
+                          self._cached_normals(j), c.v[j], spp,
                           indirect, sampler, self.visibility,
                           torch.Generator().manual_seed(seed + 2 * i + r),
                           bounces=self.bounces, diffuse=self.cfg.render.diffuse)
@@ -683,9 +690,7 @@ class MaterialTrainer:
         if self.normals is None:
             self.decisions["normals"] = {"refined": False}
             return
-        a = self.normals.angles_deg()
-        q = [float(v) for v in torch.quantile(a.float().cpu()[:: max(1, a.numel() // 100000)],
-                                             torch.tensor([0.5, 0.95, 1.0]))]
+        q = [float(v) for v in np.quantile(self.normals.angles_deg(), [0.5, 0.95, 1.0])]
         self.decisions["normals"] = {"refined": True, "from_step": int(math.ceil(
             self.cfg.normals.start * self.cfg.iters)), "change_deg_median": round(q[0], 3),
             "change_deg_p95": round(q[1], 3), "change_deg_max": round(q[2], 3)}

@@ -209,29 +209,35 @@ def field_normals(model: ShapeModel, vertices: np.ndarray, fallback: np.ndarray)
     return np.where(n > 1e-8, g / np.maximum(n, 1e-30), fallback)
 
 
+def set_mesh_normals(model: ShapeModel, mesh) -> None:
+    """Give an extracted mesh (unit frame, in place) the vertex normals stage 1 exports: the
+    field's (:func:`field_normals`) after an edge-preserving filter
+    (:data:`NORMAL_FILTER_ROUNDS`). Only the written mesh needs them: the occlusion casts and
+    the training-time Chamfer use the triangles."""
+    import open3d as o3d
+
+    from voxnero.mesh.normal_filter import bilateral_normals
+
+    if not len(mesh.vertices):
+        return
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    n = field_normals(model, v, np.asarray(mesh.vertex_normals))
+    n = bilateral_normals(v, f, n, NORMAL_FILTER_ROUNDS, NORMAL_FILTER_SIGMA_DEG)
+    mesh.vertex_normals = o3d.utility.Vector3dVector(n)
+
+
 @torch.no_grad()
 def extract(model: ShapeModel, res: int | None = None, clean: bool = True):
     """Marching cubes of a model's SDF grid (resampled to ``res``), unit frame; an Open3D
-    triangle mesh, cleaned (:func:`voxnero.mesh.cleanup.clean_mesh`) unless ``clean`` is False,
-    whose vertex normals are the field's (:func:`field_normals`) after an edge-preserving filter
-    (:data:`NORMAL_FILTER_ROUNDS`)."""
-    import open3d as o3d
-
+    triangle mesh, cleaned (:func:`voxnero.mesh.cleanup.clean_mesh`) unless ``clean`` is False."""
     from voxnero.mesh.cleanup import clean_mesh
     from voxnero.mesh.extract import extract_mesh
-    from voxnero.mesh.normal_filter import bilateral_normals
 
     g = model.sdf.grid.data
     if res and res != g.shape[-1]:
         g = resample(g, res)
     mesh = extract_mesh(g[0].cpu(), model.sdf.bounds.cpu())
-    mesh = clean_mesh(mesh) if clean else mesh
-    if len(mesh.vertices):
-        v, f = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-        n = field_normals(model, v, np.asarray(mesh.vertex_normals))
-        n = bilateral_normals(v, f, n, NORMAL_FILTER_ROUNDS, NORMAL_FILTER_SIGMA_DEG)
-        mesh.vertex_normals = o3d.utility.Vector3dVector(n)
-    return mesh
+    return clean_mesh(mesh) if clean else mesh
 
 
 def evaluate(tr: ShapeTrainer) -> dict[str, float] | None:
@@ -298,6 +304,7 @@ def write_outputs(tr: ShapeTrainer) -> Path:
     out = tr.outputs
     out.mkdir(parents=True, exist_ok=True)
     mesh = tr.extract(tr.cfg.mesh_res)
+    set_mesh_normals(tr.model, mesh)
     path = save_mesh(out / "mesh.ply", mesh, tr.scene.norm)
     g = tr.model.sdf
     np.savez_compressed(out / "sdf.npz", sdf=g.grid.data[0].cpu().numpy(),
