@@ -41,8 +41,9 @@ Diffuse lobe, two conventions (``DIFFUSE_MODELS``; ``W`` above):
   it receives at grazing angles). Rendering the true mesh, material and map of the corpus's
   oak table (roughness 0.55) through our estimator, the photos' object pixels are 1.08x the
   "weighted" render and 1.01x the "principled" one (34.6 against 32.1 dB; docs/STAGE2.md).
-  Stage 2 fits with it by default (``material.render.diffuse``); stage 1 and the project's
-  own path tracer (``voxnero synth``) keep "weighted".
+  Stage 2 fits with it by default (``material.render.diffuse``), and stage 1 shades with its
+  closed-form directional albedo (:func:`principled_diffuse_albedo`, ``light.diffuse``) since
+  session 26; the project's own path tracer (``voxnero synth``) keeps "weighted".
 """
 
 from __future__ import annotations
@@ -97,6 +98,34 @@ def principled_diffuse(n_dot_v: Tensor, n_dot_l: Tensor, l_dot_h: Tensor, roughn
     fl = (1.0 - n_dot_l.clamp(0.0, 1.0)) ** 5
     rr = 2.0 * roughness.clamp(0.0, 1.0) * l_dot_h.clamp(-1.0, 1.0) ** 2
     return (1.0 - 0.5 * fl) * (1.0 - 0.5 * fv) + rr * (fl + fv + fl * fv * (rr - 1.0))
+
+
+def principled_diffuse_albedo(n_dot_v: Tensor, roughness: Tensor) -> Tensor:
+    """Directional albedo of the ``principled`` diffuse lobe: the cosine integral over the
+    light directions of ``W / pi`` (:func:`principled_diffuse`), in closed form.
+
+    Split-sum shading of that lobe is ``albedo * P(n.v, r) * E(n) / pi`` (stage 1); it is exact
+    under uniform light. With R_r = 2 r (l.h)^2 = r (1 + l.v), the azimuthal average of l.v
+    is mu_l mu_v and of (l.v)^2 is mu_l^2 mu_v^2 + (1 - mu_l^2)(1 - mu_v^2) / 2, so every term
+    reduces to the cosine moments <F> = 1/21, <mu F> = 1/84, <mu^2 F> = 1/252 of
+    F = (1 - mu)^5 (``<g> = int_0^1 g(mu) 2 mu dmu``). At normal view P = 1 - 1/42 + 5 r / 84.
+
+    Args:
+        n_dot_v: (..., 1) cosine to the view direction (clamped to [0, 1]).
+        roughness: (..., 1) perceptual roughness (clamped to [0, 1]).
+
+    Returns:
+        (..., 1) P > 0: 0.976-1.06 at normal view; at n.v = 0.1 about 0.75 (r = 0.1) to 1.31
+        (r = 0.9), where the energy-weighted lobe's ``1 - E_d`` is 0.41 to 0.96.
+    """
+    mu = n_dot_v.clamp(0.0, 1.0)
+    r = roughness.clamp(0.0, 1.0)
+    fv = (1.0 - mu) ** 5
+    a1, a2, a3 = 1.0 / 21.0, 1.0 / 84.0, 1.0 / 252.0
+    rf = r * (a1 + mu * a2)                                   # <R_r F_l>
+    r2f = r * r * (a1 + 2.0 * mu * a2 + mu * mu * a3 + 0.5 * (1.0 - mu * mu) * (a1 - a3))
+    return ((1.0 - 0.5 * a1) * (1.0 - 0.5 * fv) + rf + r * (1.0 + 2.0 * mu / 3.0) * fv
+            + fv * r2f - fv * rf)
 
 
 def diffuse_weight(n_dot_v: Tensor, roughness: Tensor, n_dot_l: Tensor | None = None) -> Tensor:
