@@ -42,6 +42,38 @@ def test_lambert_limit_and_metal_colour():
     assert torch.allclose(c, alb, atol=0.05)
 
 
+def test_principled_diffuse_split_sum_under_uniform_light_matches_the_brdf():
+    # under uniform light (E(n)/pi = 1) the split-sum shade of the principled lobe is the
+    # lobe's directional albedo, which a quadrature of brdf_eval gives independently
+    import math
+
+    from voxnero.render.brdf import brdf_eval
+
+    n = torch.tensor([[0.0, 0.0, 1.0]])
+    th, ph = torch.meshgrid((torch.arange(160) + 0.5) * (math.pi / 2) / 160,
+                            (torch.arange(48) + 0.5) * 2 * math.pi / 48, indexing="ij")
+    l = torch.stack([th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()], -1).reshape(-1, 3)
+    dw = (th.sin() * (math.pi / 2) / 160 * 2 * math.pi / 48).reshape(-1)
+    for mu, r in ((1.0, 0.3), (0.3, 0.6), (0.08, 0.1)):
+        v = torch.tensor([[math.sqrt(1 - mu * mu), 0.0, mu]])
+        rr = torch.tensor([[r]])
+        alb = torch.tensor([[0.5, 0.5, 0.5]])
+        c = shade(n, -v, alb, torch.zeros(1, 1), rr, torch.zeros(1, 3), torch.ones(1, 3),
+                  "principled")
+        N = l.shape[0]
+        f = (brdf_eval(n.expand(N, 3), v.expand(N, 3), l, alb.expand(N, 3), torch.zeros(N, 1),
+                       rr.expand(N, 1), "principled")
+             - brdf_eval(n.expand(N, 3), v.expand(N, 3), l, torch.zeros(N, 3),
+                         torch.zeros(N, 1), rr.expand(N, 1), "principled"))
+        ref = (f[:, 0] * l[:, 2] * dw).sum()
+        assert math.isclose(float(c[0, 0]), float(ref), rel_tol=3e-3), (mu, r, c, ref)
+    # and the weighted lobe stays the default
+    c0 = shade(n, -n, alb, torch.zeros(1, 1), rr, torch.zeros(1, 3), torch.ones(1, 3))
+    cw = shade(n, -n, alb, torch.zeros(1, 1), rr, torch.zeros(1, 3), torch.ones(1, 3),
+               "weighted")
+    assert torch.equal(c0, cw)
+
+
 def test_material_head_starts_at_the_configured_roughness():
     """``light.init_roughness`` reaches the stage-1 material head: before training, every
     point reads that roughness (the knob of docs/STAGE1.md finding 14)."""

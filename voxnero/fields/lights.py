@@ -8,7 +8,8 @@ Light arriving along a reflected direction ``r`` at a surface point ``x`` is, as
   mapping of :mod:`voxnero.render.latlong`), used by stage 1 three ways: (1) the background of
   every ray (a distant environment: the background pixel *is* the light along the ray), (2) specular
   reflections, pre-filtered by roughness through a mip chain, (3) diffuse light from its
-  order-2 SH projection (cosine convolution). The DESIGN probe measured this explicit map better
+  cosine convolution (``irradiance``: order-2 SH, or the exact table of
+  ``render.envmap.irradiance_table``). The DESIGN probe measured this explicit map better
   than a free colour net; it is also directly exportable. Stage 2 starts one from the photos'
   background pixels (:func:`voxnero.material.lights.init_from_background`), with a wider clamp,
   and looks it up and samples it in its Monte Carlo estimator.
@@ -28,6 +29,7 @@ from torch import nn
 
 from voxnero.fields.heads import mlp
 from voxnero.render import latlong, mip, sh
+from voxnero.render.envmap import irradiance_table
 
 
 class EnvLight(nn.Module):
@@ -44,28 +46,33 @@ class EnvLight(nn.Module):
             roughness 1 reaches its level, see ``mip.roughness_to_level``).
         min_log: lower clamp of the log radiance (None: none, stage 1; stage 2 uses
             ``material.lights.LOG_MIN`` = -12).
+        irradiance: how :meth:`diffuse` convolves the map: "sh9" (order-2 SH, rings around a
+            sun) or "exact" (``render.envmap.irradiance_table``).
     """
 
     def __init__(self, height: int = 64, init: float = 0.5, max_log: float = 4.0,
-                 levels: int | None = None, min_log: float | None = None):
+                 levels: int | None = None, min_log: float | None = None,
+                 irradiance: str = "sh9"):
         super().__init__()
         self.log_radiance = nn.Parameter(torch.full((height, 2 * height, 3), math.log(init)))
         self.max_log = max_log
         self.min_log = min_log
         self.levels = levels
+        self.irradiance = irradiance
         self._chain: list[torch.Tensor] | None = None
         self._sh: torch.Tensor | None = None
+        self._irr: torch.Tensor | None = None
 
     @classmethod
     def from_image(cls, image: torch.Tensor, max_log: float, min_log: float | None = None,
-                   levels: int | None = None) -> EnvLight:
+                   levels: int | None = None, irradiance: str = "sh9") -> EnvLight:
         """An env light starting from a linear map.
 
         Args:
             image: ``(H, 2H, 3)`` initial linear radiance (values below 1e-4 start at 1e-4).
-            max_log, min_log, levels: as for the constructor.
+            max_log, min_log, levels, irradiance: as for the constructor.
         """
-        env = cls(int(image.shape[0]), 1.0, max_log, levels, min_log)
+        env = cls(int(image.shape[0]), 1.0, max_log, levels, min_log, irradiance)
         env.log_radiance = nn.Parameter(torch.log(image.float().clamp_min(1e-4)))
         return env
 
@@ -79,15 +86,20 @@ class EnvLight(nn.Module):
         return torch.exp(self.log_radiance.clamp(self.min_log, self.max_log))
 
     def prepare(self) -> None:
-        """Build the mip chain and SH coefficients of the current map (once per step)."""
+        """Build the mip chain and the irradiance (SH coefficients or the exact table) of the
+        current map (once per step)."""
         img = self.image()
         self._chain = mip.mip_chain(img, self.levels)
-        self._sh = sh.sh9_project(img)
+        if self.irradiance == "exact":
+            self._irr = irradiance_table(img)
+        else:
+            self._sh = sh.sh9_project(img)
 
     def release(self) -> None:
         """Drop the per-step caches (so a stale graph is never reused)."""
         self._chain = None
         self._sh = None
+        self._irr = None
 
     def background(self, d: torch.Tensor) -> torch.Tensor:
         """Radiance ``(N, 3)`` seen along unit directions ``d (N, 3)`` (finest level)."""
@@ -103,8 +115,10 @@ class EnvLight(nn.Module):
     def diffuse(self, n: torch.Tensor) -> torch.Tensor:
         """Cosine-weighted radiance ``E(n)/π`` ``(N, 3)`` for unit normals ``n (N, 3)``; a
         Lambertian surface of albedo a reflects ``a·E/π``."""
-        if self._sh is None:
+        if self._sh is None and self._irr is None:
             self.prepare()
+        if self._irr is not None:
+            return latlong.envmap_lookup(self._irr, n) / math.pi
         return sh.sh9_irradiance(self._sh, n) / math.pi
 
     def upsampled(self, height: int) -> EnvLight:
@@ -112,7 +126,7 @@ class EnvLight(nn.Module):
         same convention) at the new pixel-centre directions."""
         d = latlong.pixel_dirs(height, 2 * height, device=self.log_radiance.device)
         img = torch.exp(latlong.envmap_lookup(self.log_radiance.detach(), d))
-        return EnvLight.from_image(img, self.max_log, self.min_log, self.levels)
+        return EnvLight.from_image(img, self.max_log, self.min_log, self.levels, self.irradiance)
 
     def smoothness(self) -> torch.Tensor:
         """Mean squared difference of neighbouring log-radiance pixels (periodic in u)."""

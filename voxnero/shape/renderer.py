@@ -65,12 +65,14 @@ class ShapeModel(nn.Module):
         super().__init__()
         g, lc = cfg.grid, cfg.light
         self.sw = sw
+        self.diffuse = cfg.light.diffuse
         self.sdf = SDFGrid(res or g.res[0], g.bound, g.init_radius)
         self.feat = DenseGrid(g.feat_dim, g.feat_res, g.bound)
         nn.init.normal_(self.feat.grid, std=0.1)
         self.material = MaterialHead(g.feat_dim, lc.hidden, metallic=sw.metallic,
                                      init_roughness=lc.init_roughness)
-        self.env = EnvLight(lc.env_height, lc.env_init, lc.max_log_radiance)
+        self.env = EnvLight(lc.env_height, lc.env_init, lc.max_log_radiance,
+                            irradiance=lc.irradiance)
         self.indirect = IndirectNet(g.feat_dim, lc.hidden) if sw.indirect else None
         self.occlusion = OcclusionNet(g.feat_dim, lc.hidden) if sw.occlusion else None
         self.near_bg = (NearBackground(lc.near_res, lc.near_samples, lc.near_far_ratio)
@@ -198,7 +200,7 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
             ind = model.indirect(feat, refl, rough)
             spec = (1.0 - occ) * spec + occ * ind
     diff = model.env.diffuse(n)
-    surf = shade(n, d, albedo, metallic, rough, spec, diff)
+    surf = shade(n, d, albedo, metallic, rough, spec, diff, model.diffuse)
     rgb = rgb.index_put((idx,), acc[:, None] * surf + (1.0 - acc[:, None]) * bg[idx])
     acc_all = acc_all.index_put((idx,), acc)
     normal_all = normal_all.index_put((idx,), n)
