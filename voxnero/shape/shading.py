@@ -58,5 +58,5 @@ def shade(n: torch.Tensor, d: torch.Tensor, albedo: torch.Tensor, metallic: torc
         w = principled_diffuse_albedo(n_dot_v, roughness)
     else:  # what the dielectric interface does not reflect (render/brdf.py)
         w = diffuse_weight(n_dot_v, roughness)
-    return (1.0 - metallic) * w * albedo * diff_light + specular_split_sum(f0_from(albedo, metallic), n_dot_v, roughness,
-                                        spec_light)
+    return (1.0 - metallic) * w * albedo * diff_light + specular_split_sum(
+        f0_from(albedo, metallic), n_dot_v, roughness, spec_light)
