@@ -204,7 +204,7 @@ class RenderConfig:
     """The BRDF's diffuse lobe (``voxnero.render.brdf``): "principled" = the Disney diffuse with
     retro-reflection of Mitsuba's ``principled`` BSDF (Burley's fit to measured materials),
     which rendered the dev scenes and the corpus; "weighted" = Lambert energy-weighted under
-    the specular interface (glTF's ``fresnel_mix``; stage 1's before session 26). With the TRUE
+    the specular interface (glTF's ``fresnel_mix``; stage 1's default). With the TRUE
     mesh, material and map the photos are 1.01x our "principled" render and 1.08x the
     "weighted" one (oak table). Together with ``field.init_metallic`` = 0 it narrows the
     Mitsuba relight gap of the dielectrics (table 8.97 -> 7.23 dB, chair 5.97 -> 4.14, duck

@@ -41,9 +41,10 @@ Diffuse lobe, two conventions (``DIFFUSE_MODELS``; ``W`` above):
   it receives at grazing angles). Rendering the true mesh, material and map of the corpus's
   oak table (roughness 0.55) through our estimator, the photos' object pixels are 1.08x the
   "weighted" render and 1.01x the "principled" one (34.6 against 32.1 dB; docs/STAGE2.md).
-  Stage 2 fits with it by default (``material.render.diffuse``), and stage 1 shades with its
-  closed-form directional albedo (:func:`principled_diffuse_albedo`, ``light.diffuse``) since
-  session 26; the project's own path tracer (``voxnero synth``) keeps "weighted".
+  Stage 2 fits with it by default (``material.render.diffuse``); stage 1 can shade with its
+  closed-form directional albedo (:func:`principled_diffuse_albedo`, ``light.diffuse``, not
+  its default: docs/STAGE1.md finding 27); the project's own path tracer (``voxnero synth``)
+  keeps "weighted".
 """
 
 from __future__ import annotations

@@ -268,20 +268,23 @@ class LightConfig:
     env_init: float = 0.5
     """Initial env radiance (linear)."""
     max_log_radiance: float = 4.0
-    diffuse: Literal["principled", "weighted"] = "principled"
-    """The diffuse lobe the split-sum shading uses (``shape.shading.shade``): "principled" =
-    the Disney (Burley 2015) lobe with retro-reflection, stage 2's default, whose directional
-    albedo (closed form, ``render.brdf.principled_diffuse_albedo``) is brighter at grazing
-    views: at n.v = 0.1, 1.9x (r = 0.1) to 1.4x (r = 0.9) the "weighted" lobe's, Lambert under
-    the dielectric interface (``1 - E_d``), the default before session 26. Together with
-    ``irradiance`` = "exact", `standard` on the corpus (carved start; docs/STAGE1.md finding
-    27): normal error median 6.66 -> 5.92 deg over the ten scenes (bunny 0.55 -> 0.43 px,
-    table 6.8 -> 5.3 deg), the Chamfer median unchanged (0.85 px)."""
-    irradiance: Literal["sh9", "exact"] = "exact"
-    """How the env map lights the diffuse lobe (``fields.lights.EnvLight``): its exact cosine
-    convolution (``render.envmap.irradiance_table``, by FFT along the map's rows, 12 ms a step
-    with its gradient at 64 rows on one thread), or its order-2 SH projection ("sh9", 4 ms),
-    which rings around a sun: a face at 90 degrees to it gets 9 % of its normal irradiance."""
+    diffuse: Literal["principled", "weighted"] = "weighted"
+    """The diffuse lobe the split-sum shading uses (``shape.shading.shade``): "weighted" =
+    Lambert under the dielectric interface (``1 - E_d(n.v)``), dark at grazing views;
+    "principled" = the Disney (Burley 2015) lobe with retro-reflection that rendered the photos
+    and that stage 2 fits, by its closed-form directional albedo
+    (``render.brdf.principled_diffuse_albedo``; at n.v = 0.1, 1.9x (r = 0.1) to 1.4x (r = 0.9)
+    the weighted lobe's). Measured with ``irradiance`` = "exact" on the corpus at `standard`
+    (docs/STAGE1.md finding 27): normal error median 6.66 -> 5.92 deg, Chamfer median 0.85
+    unchanged, bunny 0.55 -> 0.43 px, but the metals' meshes relit worse (knot -1.8 dB,
+    pretzel -3.0 dB at seed 0, -0.4 at seed 1; the relight median 26.28 -> 24.84 dB), so not
+    the default."""
+    irradiance: Literal["sh9", "exact"] = "sh9"
+    """How the env map lights the diffuse lobe (``fields.lights.EnvLight``): its order-2 SH
+    projection (4 ms a step with its gradient at 64 rows on one thread), which rings around a
+    sun (a face at 90 degrees to it gets 9 % of its normal irradiance), or its exact cosine
+    convolution ("exact", ``render.envmap.irradiance_table``, by FFT along the map's rows,
+    12 ms). Measured together with ``diffuse``, above."""
     indirect: Switch = "auto"
     """Indirect-light net mixed in by the occlusion probability; it follows ``occlusion``
     unless "off" (there is no occlusion probability to mix it in without the occlusion net)."""
