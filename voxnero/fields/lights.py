@@ -58,6 +58,8 @@ class EnvLight(nn.Module):
         self.max_log = max_log
         self.min_log = min_log
         self.levels = levels
+        if irradiance not in ("sh9", "exact"):
+            raise ValueError(f"irradiance must be 'sh9' or 'exact', not {irradiance!r}")
         self.irradiance = irradiance
         self._chain: list[torch.Tensor] | None = None
         self._sh: torch.Tensor | None = None

@@ -68,10 +68,12 @@ def irradiance_table(img: Tensor) -> Tensor:
         dphi = torch.arange(W, **kw) * (2.0 * math.pi / W)            # column offsets
         k = (cos_t[:, None, None] * cos_t[None, :, None]
              + sin_t[:, None, None] * sin_t[None, :, None] * torch.cos(dphi)).clamp_min(0.0)
-        # even in the offset, so its spectrum is real: (H normals, H texels, W // 2 + 1)
-        _KERNELS[key] = (torch.fft.rfft(k * om[None, :, None], dim=-1).real).to(img.dtype)
+        # even in the offset, so its spectrum is real: (H normals, H texels, W // 2 + 1), kept
+        # in the complex dtype of the map's spectrum so that no step converts it again
+        spec_dtype = torch.fft.rfft(torch.zeros(2, dtype=img.dtype)).dtype
+        _KERNELS[key] = torch.fft.rfft(k * om[None, :, None], dim=-1).real.to(spec_dtype)
     spec = torch.fft.rfft(src, dim=1)                                 # (H, W//2+1, C)
-    out = torch.einsum("ihk,hkc->ikc", _KERNELS[key].to(spec.dtype), spec)
+    out = torch.einsum("ihk,hkc->ikc", _KERNELS[key], spec)
     return torch.fft.irfft(out, n=W, dim=1)
 
 
