@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 import pytest
+import torch
 
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.renderer import ShapeModel, Switches
@@ -36,3 +37,22 @@ def test_field_normals_of_a_sphere_grid_beat_the_triangles(res):
     assert field < 0.1, field
     assert ours < 0.4, ours
     assert max(field, ours) < theirs, (field, ours, theirs)
+
+
+def test_extraction_ignores_the_cube_corners_outside_the_sampling_sphere():
+    """No ray samples beyond the sampling sphere, so a field that went negative in the grid's
+    corners there (unconstrained by any photo) must not add surface: the clipped mesh is the
+    sphere alone (every vertex within a voxel of radius 0.7), while the unclipped one also holds
+    sheets out to the cube's corners."""
+    model = ShapeModel(ShapeConfig(), Switches(indirect=False, occlusion=False), res=32)
+    g = model.sdf.grid.data
+    b = model.sdf.bounds
+    axes = [torch.linspace(float(b[0, i]), float(b[1, i]), 32) for i in (2, 1, 0)]
+    z, y, x = torch.meshgrid(*axes, indexing="ij")
+    corner = (x.abs() > 0.85) & (y.abs() > 0.85) & (z.abs() > 0.85)  # |p| > 1.47 there
+    g[0][corner] = -0.1
+    voxel = float(b[1, 0] - b[0, 0]) / 31
+    clipped = np.linalg.norm(np.asarray(extract(model, clean=False, radius=1.0).vertices), axis=1)
+    raw = np.linalg.norm(np.asarray(extract(model, clean=False).vertices), axis=1)
+    assert np.abs(clipped - 0.7).max() < voxel, np.abs(clipped - 0.7).max()
+    assert raw.max() > 1.3, raw.max()

@@ -31,7 +31,7 @@ import torch
 
 from voxnero.config import to_dict
 from voxnero.errors import RunFolderError
-from voxnero.fields.grid import resample
+from voxnero.fields.grid import grid_points, resample
 from voxnero.safety import fingerprint
 from voxnero.safety.guard import check_finite
 from voxnero.shape import adaptive, light_switch, schedules
@@ -119,7 +119,7 @@ def load_checkpoint(tr: ShapeTrainer) -> bool:
     tr.opt.load_state_dict(ck["opt"])
     tr.step = int(ck["step"])
     tr.train_time = float(ck["train_time"])
-    tr.gen.set_state(ck["gen"])
+    tr.gen.set_state(ck["gen"].cpu())  # loaded onto the device; RNG states are CPU bytes
     if "pixels" in ck:
         tr.pixels.load_state_dict(ck["pixels"])
     tr.last_eval = tr.train_time
@@ -227,15 +227,38 @@ def set_mesh_normals(model: ShapeModel, mesh) -> None:
 
 
 @torch.no_grad()
-def extract(model: ShapeModel, res: int | None = None, clean: bool = True):
+def clip_to_sphere(g: torch.Tensor, bounds: torch.Tensor, radius: float) -> torch.Tensor:
+    """The SDF grid with everything outside the sphere ``|x| = radius`` made empty.
+
+    No training ray samples beyond the sampling sphere (``sampling.radius``), so the grid's
+    corners outside it are never checked against a photo: there the field drifts with the
+    regularisers alone and may turn negative (table_oak, whose fitted box is the whole cube:
+    half of the voxels outside the sphere went negative, and the mesh grew sheets in the
+    corners). ``max(f, |x| - radius)`` keeps every surface inside the sphere exactly.
+
+    Args:
+        g: ``(1, D, H, W)`` SDF grid indexed ``[z, y, x]`` (unit frame).
+        bounds: ``(2, 3)`` positions of the grid's corner samples.
+        radius: the sampling sphere's radius (unit frame, centred at the origin).
+    """
+    outside = grid_points(tuple(g.shape[-3:]), bounds.to(g)).norm(dim=-1) - radius
+    return torch.maximum(g, outside[None])
+
+
+def extract(model: ShapeModel, res: int | None = None, clean: bool = True,
+            radius: float | None = None):
     """Marching cubes of a model's SDF grid (resampled to ``res``), unit frame; an Open3D
-    triangle mesh, cleaned (:func:`voxnero.mesh.cleanup.clean_mesh`) unless ``clean`` is False."""
+    triangle mesh, cleaned (:func:`voxnero.mesh.cleanup.clean_mesh`) unless ``clean`` is False.
+    ``radius``: the sampling sphere; the field outside it is taken as empty
+    (:func:`clip_to_sphere`)."""
     from voxnero.mesh.cleanup import clean_mesh
     from voxnero.mesh.extract import extract_mesh
 
     g = model.sdf.grid.data
     if res and res != g.shape[-1]:
         g = resample(g, res)
+    if radius is not None:
+        g = clip_to_sphere(g, model.sdf.bounds, radius)
     mesh = extract_mesh(g[0].cpu(), model.sdf.bounds.cpu())
     return clean_mesh(mesh) if clean else mesh
 

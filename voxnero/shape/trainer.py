@@ -140,7 +140,7 @@ class ShapeTrainer:
 
     def extract(self, res: int | None = None, clean: bool = True):
         """Marching cubes of the current SDF grid (:func:`voxnero.shape.run_files.extract`)."""
-        return run_files.extract(self.model, res, clean)
+        return run_files.extract(self.model, res, clean, self.cfg.sampling.radius)
 
     # ------------------------------------------------------------------ one step
     def pixel_batch(self, n: int, gen: torch.Generator
