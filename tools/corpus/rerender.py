@@ -1,0 +1,81 @@
+#!/usr/bin/env python
+"""Re-render a built corpus scene's training photos with one effect changed (diagnostic).
+
+Same cameras, shape, materials, map, sampler and spp as ``tools/corpus/build.py``, with the
+path depth (``--max-depth 2``: direct light only, no inter-reflection) and/or the environment
+map clamped at a quantile of its texels' maximum channel (``--clamp 0.99`` removes a sun) set
+here. Writes ``OUT/train/`` and ``OUT/train_mask/`` and links every other file of the scene,
+so ``OUT`` is a scene that trains and evaluates like the original (docs/STAGE1.md, finding 29:
+on which photos a stage-1 run still drifts names the effect it cannot render). At depth 16 and
+no clamp it reproduces the corpus's photos (mean 8-bit difference 0.01 on frame_red).
+
+Example::
+
+    python -m tools.corpus.rerender cache/corpus/frame_red cache/variants/frame_d2 --max-depth 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scene", type=Path, help="a built corpus scene folder")
+    ap.add_argument("out", type=Path, help="the new scene folder")
+    ap.add_argument("--max-depth", type=int, default=16, help="Mitsuba path depth (corpus: 16)")
+    ap.add_argument("--clamp", type=float, default=None,
+                    help="clamp the map at this quantile of its texels' maximum channel")
+    ap.add_argument("--shared", type=Path, default=None, help="../shared/data (dev scenes' maps)")
+    a = ap.parse_args(argv)
+
+    import numpy as np
+    import open3d as o3d
+    from tqdm import tqdm
+
+    from tools.corpus import build, envmaps, render, rigs, shapes
+    from tools.corpus.scenes import SCENES
+    from voxnero.synth.writer import write_view
+
+    specs = {s.name: s for s in SCENES}
+    if a.scene.name not in specs or not (a.scene / "gt" / "mesh.ply").is_file():
+        ap.error(f"{a.scene}: not a built corpus scene (names: {', '.join(specs)})")
+    spec = specs[a.scene.name]
+    m = o3d.io.read_triangle_mesh(str(a.scene / "gt" / "mesh.ply"))
+    mesh = shapes.Mesh(np.asarray(m.vertices), np.asarray(m.triangles),
+                       np.asarray(m.vertex_normals))
+    dist = rigs.distance_for_fill(float(np.linalg.norm(mesh.vertices, axis=1).max()), spec.fill)
+    c2w = rigs.look_at_gl(rigs.train_directions(spec.rig, build.N_TRAIN) * dist)
+    env = envmaps.make(spec.env, a.shared or build.DEFAULT_SHARED)
+    if a.clamp is not None:
+        cap = float(np.quantile(env[..., :3].max(-1), a.clamp))
+        print(f"map clamped at {cap:.4g} (its maximum {env.max():.4g})")
+        env = np.minimum(env, cap)
+    render.set_variant()
+    parts = build._parts(spec, mesh)
+    r = render.Renderer(parts, env, build.WIDTH, build.HEIGHT, rigs.FOV_X_DEG)
+    if a.max_depth != 16:
+        r.scene = r._scene(parts, env, build.WIDTH, build.HEIGHT, rigs.FOV_X_DEG,
+                           {"type": "path", "max_depth": a.max_depth})
+        r.params[0] = r.mi.traverse(r.scene)
+    a.out.mkdir(parents=True, exist_ok=True)
+    for f in a.scene.iterdir():
+        if f.name not in ("train", "train_mask") and not (a.out / f.name).exists():
+            os.symlink(f.resolve(), a.out / f.name)
+    for k in tqdm(range(build.N_TRAIN), desc=a.out.name):
+        rgb = r.radiance(c2w[k], 128, seed=k)
+        cov = r.geometry(c2w[k], 32, seed=k)["coverage"]
+        write_view(a.out, "train", k, rgb, cov, exr=False)
+    print(f"wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
