@@ -2,12 +2,13 @@
 """Re-render a built corpus scene's training photos with one effect changed (diagnostic).
 
 Same cameras, shape, materials, map, sampler and spp as ``tools/corpus/build.py``, with the
-path depth (``--max-depth 2``: direct light only, no inter-reflection) and/or the environment
-map clamped at a quantile of its texels' maximum channel (``--clamp 0.99`` removes a sun) set
-here. Writes ``OUT/train/`` and ``OUT/train_mask/`` and links every other file of the scene,
-so ``OUT`` is a scene that trains and evaluates like the original (docs/STAGE1.md, finding 29:
-on which photos a stage-1 run still drifts names the effect it cannot render). At depth 16 and
-no clamp it reproduces the corpus's photos (mean 8-bit difference 0.01 on frame_red).
+path depth (``--max-depth 2``: direct light only, no inter-reflection), a Lambertian BSDF
+(``--lambert``) and/or the environment map clamped at a quantile of its texels' maximum
+channel (``--clamp 0.99`` removes a sun) set here. Writes ``OUT/train/`` and
+``OUT/train_mask/`` and links every other file of the scene, so ``OUT`` is a scene that
+trains and evaluates like the original (docs/STAGE1.md, finding 29: on which photos a
+stage-1 run still drifts names the effect it cannot render). At depth 16 and no clamp it
+reproduces the corpus's photos (mean 8-bit difference 0.01 on frame_red).
 
 Example::
 
@@ -33,6 +34,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-depth", type=int, default=16, help="Mitsuba path depth (corpus: 16)")
     ap.add_argument("--clamp", type=float, default=None,
                     help="clamp the map at this quantile of its texels' maximum channel")
+    ap.add_argument("--lambert", action="store_true",
+                    help="a two-sided Lambertian BSDF of the same base colour instead of the "
+                         "principled one (no specular lobe at all)")
     ap.add_argument("--shared", type=Path, default=None, help="../shared/data (dev scenes' maps)")
     a = ap.parse_args(argv)
 
@@ -59,6 +63,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"map clamped at {cap:.4g} (its maximum {env.max():.4g})")
         env = np.minimum(env, cap)
     render.set_variant()
+    if a.lambert:
+        principled = render._bsdf
+
+        def lambert(part: render.Part) -> dict:
+            return {"type": "twosided", "material": {
+                "type": "diffuse",
+                "reflectance": principled(part)["material"]["base_color"]}}
+
+        render._bsdf = lambert
     parts = build._parts(spec, mesh)
     r = render.Renderer(parts, env, build.WIDTH, build.HEIGHT, rigs.FOV_X_DEG)
     if a.max_depth != 16:
