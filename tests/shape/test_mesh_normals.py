@@ -7,9 +7,10 @@ import open3d as o3d
 import pytest
 import torch
 
+from voxnero.fields.grid import grid_points
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.renderer import ShapeModel, Switches
-from voxnero.shape.run_files import extract, field_normals, set_mesh_normals
+from voxnero.shape.run_files import clip_to_sphere, extract, field_normals, set_mesh_normals
 
 
 def _angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -47,12 +48,23 @@ def test_extraction_ignores_the_cube_corners_outside_the_sampling_sphere():
     model = ShapeModel(ShapeConfig(), Switches(indirect=False, occlusion=False), res=32)
     g = model.sdf.grid.data
     b = model.sdf.bounds
-    axes = [torch.linspace(float(b[0, i]), float(b[1, i]), 32) for i in (2, 1, 0)]
-    z, y, x = torch.meshgrid(*axes, indexing="ij")
-    corner = (x.abs() > 0.85) & (y.abs() > 0.85) & (z.abs() > 0.85)  # |p| > 1.47 there
+    corner = (grid_points(32, b).abs() > 0.85).all(-1)  # |p| > 1.47 there
     g[0][corner] = -0.1
     voxel = float(b[1, 0] - b[0, 0]) / 31
     clipped = np.linalg.norm(np.asarray(extract(model, clean=False, radius=1.0).vertices), axis=1)
     raw = np.linalg.norm(np.asarray(extract(model, clean=False).vertices), axis=1)
     assert np.abs(clipped - 0.7).max() < voxel, np.abs(clipped - 0.7).max()
     assert raw.max() > 1.3, raw.max()
+
+
+def test_clip_to_sphere_on_an_off_centre_box_uses_each_voxels_own_position():
+    """A fitted box is not centred, so the clip must pair every voxel ([z, y, x] order) with
+    its own position: on a box shifted along x only, the clipped value equals
+    ``max(f, |p| - r)`` computed voxel by voxel from the corner positions written out here."""
+    bounds = torch.tensor([[0.2, -0.5, -0.5], [1.2, 0.5, 0.5]])
+    d, h, w = 5, 6, 7
+    g = torch.full((1, d, h, w), -1.0)
+    clipped = clip_to_sphere(g, bounds, 1.0)[0]
+    for k, j, i in [(0, 0, 6), (4, 5, 0), (2, 3, 6), (0, 5, 3)]:
+        p = torch.tensor([0.2 + i / (w - 1), -0.5 + j / (h - 1), -0.5 + k / (d - 1)])
+        assert torch.isclose(clipped[k, j, i], torch.clamp(p.norm() - 1.0, min=-1.0)), (k, j, i)
