@@ -3,12 +3,15 @@
 
 Same cameras, shape, materials, map, sampler and spp as ``tools/corpus/build.py``, with the
 path depth (``--max-depth 2``: direct light only, no inter-reflection), a Lambertian BSDF
-(``--lambert``) and/or the environment map clamped at a quantile of its texels' maximum
-channel (``--clamp 0.99`` removes a sun) set here. Writes ``OUT/train/`` and
-``OUT/train_mask/`` and links every other file of the scene, so ``OUT`` is a scene that
-trains and evaluates like the original (docs/STAGE1.md, finding 29: on which photos a
-stage-1 run still drifts names the effect it cannot render). At depth 16 and no clamp it
-reproduces the corpus's photos (mean 8-bit difference 0.01 on frame_red).
+(``--lambert``), the environment map clamped at a quantile of its texels' maximum
+channel (``--clamp 0.99`` removes a sun) and/or another shape (``--mesh``: e.g. a frozen
+stage-1 run's mesh, so that the photos show exactly what the grid can represent; the cameras
+stay the scene's, and the test views' masks, depth and normals and ``OUT/gt/mesh.ply`` are
+re-rendered from that mesh, so ``voxnero eval`` scores against it) set here. Writes
+``OUT/train/`` and ``OUT/train_mask/`` and links every other file of the scene, so ``OUT``
+is a scene that trains and evaluates like the original (docs/STAGE1.md, findings 29–30: on
+which photos a stage-1 run still drifts names the effect it cannot render). At depth 16 and
+no clamp it reproduces the corpus's photos (mean 8-bit difference 0.01 on frame_red).
 
 Example::
 
@@ -37,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lambert", action="store_true",
                     help="a two-sided Lambertian BSDF of the same base colour instead of the "
                          "principled one (no specular lobe at all)")
+    ap.add_argument("--mesh", type=Path, default=None,
+                    help="render this mesh (PLY, the scene's input frame) instead of gt/mesh.ply")
     ap.add_argument("--shared", type=Path, default=None, help="../shared/data (dev scenes' maps)")
     a = ap.parse_args(argv)
 
@@ -46,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from tools.corpus import build, envmaps, render, rigs, shapes
     from tools.corpus.scenes import SCENES
-    from voxnero.synth.writer import write_view
+    from voxnero.synth.writer import write_gt_maps, write_view
 
     specs = {s.name: s for s in SCENES}
     if a.scene.name not in specs or not (a.scene / "gt" / "mesh.ply").is_file():
@@ -58,6 +63,13 @@ def main(argv: list[str] | None = None) -> int:
     dist = rigs.distance_for_fill(float(np.linalg.norm(mesh.vertices, axis=1).max()), spec.fill)
     c2w = rigs.look_at_gl(rigs.train_directions(spec.rig, build.N_TRAIN) * dist)
     env = envmaps.make(spec.env, a.shared or build.DEFAULT_SHARED)
+    if a.mesh is not None:  # after the cameras: they are the scene's, not fitted to this mesh
+        m = o3d.io.read_triangle_mesh(str(a.mesh))
+        if len(m.triangles) == 0:
+            ap.error(f"{a.mesh}: no triangles")
+        m.compute_vertex_normals()
+        mesh = shapes.Mesh(np.asarray(m.vertices), np.asarray(m.triangles),
+                           np.asarray(m.vertex_normals))
     if a.clamp is not None:
         cap = float(np.quantile(env[..., :3].max(-1), a.clamp))
         print(f"map clamped at {cap:.4g} (its maximum {env.max():.4g})")
@@ -79,9 +91,29 @@ def main(argv: list[str] | None = None) -> int:
                            {"type": "path", "max_depth": a.max_depth})
         r.params[0] = r.mi.traverse(r.scene)
     a.out.mkdir(parents=True, exist_ok=True)
+    own = ("train", "train_mask") + (("gt", "test", "test_mask", "test_exr")
+                                     if a.mesh is not None else ())
     for f in a.scene.iterdir():
-        if f.name not in ("train", "train_mask") and not (a.out / f.name).exists():
+        if f.name not in own and not (a.out / f.name).exists():
             os.symlink(f.resolve(), a.out / f.name)
+    if a.mesh is not None:
+        (a.out / "gt").mkdir(exist_ok=True)
+        for f in (a.scene / "gt").iterdir():
+            if (f.name != "mesh.ply" and not f.name.startswith("test_")
+                    and not (a.out / "gt" / f.name).exists()):
+                os.symlink(f.resolve(), a.out / "gt" / f.name)
+        o3d.io.write_triangle_mesh(str(a.out / "gt" / "mesh.ply"), m)
+        c2w_test = rigs.look_at_gl(rigs.test_directions(
+            spec.rig, rigs.train_directions(spec.rig, build.N_TRAIN), build.N_TEST,
+            seed=sum(map(ord, spec.name)))[0] * dist)
+        for k in tqdm(range(build.N_TEST), desc=f"{a.out.name} test"):
+            geo = r.geometry(c2w_test[k], 32, seed=1000 + k)
+            write_view(a.out, "test", k, r.radiance(c2w_test[k], 64, seed=1000 + k),
+                       geo["coverage"], exr=True)
+            write_gt_maps(a.out, k, {
+                "normal": geo["normal"],
+                "depth": build.z_depth(geo["position"], geo["coverage"], c2w_test[k]),
+                **build.material_maps(spec, geo["position"], geo["coverage"])})
     for k in tqdm(range(build.N_TRAIN), desc=a.out.name):
         rgb = r.radiance(c2w[k], 128, seed=k)
         cov = r.geometry(c2w[k], 32, seed=k)["coverage"]
