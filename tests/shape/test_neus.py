@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -58,3 +59,39 @@ def test_sharpness_schedule_geometric():
     assert abs(sharpness_schedule(1, 30, 300) - 300) < 1e-9
     assert abs(sharpness_schedule(0.5, 30, 300) - math.sqrt(30 * 300)) < 1e-9
     assert abs(sharpness_schedule(2, 30, 300) - 300) < 1e-9
+
+
+@settings(max_examples=60, deadline=None)
+@given(iters=st.integers(10, 5000), final_at=st.floats(0.05, 0.95),
+       s_final=st.floats(400.0, 1e5), ramp=st.floats(0.05, 1.0))
+def test_the_finishing_phase_keeps_the_ramp_then_rises_monotonically_to_s_final(
+        iters, final_at, s_final, ramp):
+    from voxnero.config import resolve
+    from voxnero.shape import schedules
+    from voxnero.shape.config import ShapeConfig
+
+    cfg = resolve(ShapeConfig, "shape", "standard",
+                  [f"iters={iters}", f"neus.final_at={final_at}", f"neus.s_final={s_final}",
+                   f"neus.ramp={ramp}"])
+    plain = resolve(ShapeConfig, "shape", "standard",
+                    [f"iters={iters}", f"neus.s_final={cfg.neus.s_end}", f"neus.ramp={ramp}"])
+    s = [schedules.sharpness(cfg, k) for k in range(iters + 1)]
+    assert all(math.isfinite(v) and v > 0 for v in s)
+    assert all(b >= a * (1 - 1e-12) for a, b in zip(s[:-1], s[1:], strict=True))  # never falls
+    assert math.isclose(s[-1], max(s_final, schedules.sharpness(plain, iters)), rel_tol=1e-9)
+    start = int(final_at * iters)
+    for k in range(0, start + 1, max(start // 7, 1)):  # before the phase: the old schedule
+        assert s[k] == schedules.sharpness(plain, k)
+    assert schedules.coarse_samples(cfg, 0) == cfg.sampling.coarse
+    assert schedules.coarse_samples(cfg, iters) == cfg.sampling.coarse_final
+
+
+def test_s_final_below_s_end_is_refused_with_a_fix():
+    from voxnero.config import resolve
+    from voxnero.errors import ConfigError
+    from voxnero.shape.config import ShapeConfig
+
+    with pytest.raises(ConfigError, match="s_final"):
+        resolve(ShapeConfig, "shape", "standard", ["neus.s_final=100"])
+    with pytest.raises(ConfigError, match="coarse_final"):
+        resolve(ShapeConfig, "shape", "standard", ["sampling.coarse_final=4"])

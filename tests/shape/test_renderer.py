@@ -155,3 +155,53 @@ def test_the_diffuse_lobe_and_irradiance_options_reach_the_shading():
     n = a["n_hit"]
     torch.testing.assert_close(model.env.diffuse(n),
                                sh9_irradiance(sh9_project(model.env.image()), n) / math.pi)
+
+
+def test_the_finishing_phase_renders_a_sharp_edge_opaque_to_its_true_outline():
+    """A box rotated against the grid axes, its exact SDF sampled at the 96³ grid's corners (the
+    trilinear field rounds its edges by ~0.3 voxel). Rays that dip 0.25–1 voxel into the true box
+    (grazing its edges: the outline's first pixels) must render opaque. At the mid-run
+    sharpness ``neus.s_end`` with ``sampling.coarse`` samples they lack opacity, which a fit
+    makes up by fattening the faces (docs/STAGE1.md finding 30); the finishing phase's
+    ``neus.s_final`` with ``sampling.coarse_final`` renders them opaque, and leaves the rays
+    that pass just outside the box empty."""
+    from voxnero.fields.grid import grid_points
+
+    cfg = ShapeConfig()
+    a, b = 0.5, 0.7
+    rz = torch.tensor([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0],
+                       [0.0, 0.0, 1.0]])
+    rx = torch.tensor([[1.0, 0.0, 0.0], [0.0, math.cos(b), -math.sin(b)],
+                       [0.0, math.sin(b), math.cos(b)]])
+    rot = rz @ rx
+
+    def box_sdf(x: torch.Tensor) -> torch.Tensor:
+        q = (x @ rot).abs() - 0.45
+        return q.clamp_min(0.0).norm(dim=-1) + q.amax(-1).clamp_max(0.0)
+
+    model = ShapeModel(cfg, Switches(indirect=False, occlusion=False, background="distant"),
+                       res=96)
+    with torch.no_grad():
+        model.sdf.grid.copy_(box_sdf(grid_points(96, model.sdf.bounds).reshape(-1, 3))
+                             .reshape(model.sdf.grid.shape))
+    model.env.prepare()
+    vox = float(model.sdf.voxel)
+    o, d = _rays(8000, seed=4, spread=0.8)
+    t = torch.linspace(2.0, 4.0, 3000)
+    depth = -torch.cat([box_sdf(o[i:i + 200, None] + t[None, :, None] * d[i:i + 200, None])
+                        .amin(-1) for i in range(0, o.shape[0], 200)]) / vox
+    grazing = (depth > 0.25) & (depth < 1.0)
+    outside = (depth < -0.1) & (depth > -0.5)
+    assert grazing.sum() > 200 and outside.sum() > 100
+
+    def opacity(sel: torch.Tensor, s: float, coarse: int) -> float:
+        with torch.no_grad():
+            out = render_rays(model, o[sel], d[sel], s, cfg, train=True,
+                              generator=torch.Generator().manual_seed(5), coarse=coarse)
+        return float(out["acc"].mean())
+
+    mid = opacity(grazing, cfg.neus.s_end, cfg.sampling.coarse)
+    final = opacity(grazing, cfg.neus.s_final, cfg.sampling.coarse_final)
+    assert final > 0.97, final
+    assert final > mid + 0.05, (mid, final)
+    assert opacity(outside, cfg.neus.s_final, cfg.sampling.coarse_final) < 0.02

@@ -195,7 +195,7 @@ class SamplingConfig:
         "rays": at_least(1, BIG_COUNT), "coarse": at_least(2, 4096), "fine": at_least(0, 4096),
         "coarse_keep": at_least(0, 4096), "radius": positive(10.0),
         "error_frac": FRACTION, "error_tile": at_least(1, 4096),
-        "error_decay": Range(0.0, 1.0, lo_open=True)}
+        "error_decay": Range(0.0, 1.0, lo_open=True), "coarse_final": at_least(0, 4096)}
 
     rays: int = 4096
     coarse: int = 32
@@ -204,6 +204,10 @@ class SamplingConfig:
     """Importance samples per ray drawn from the coarse NeuS weights."""
     coarse_keep: int = 16
     """How many evenly spaced coarse samples join the fine ones in the rendered set."""
+    coarse_final: int = 128
+    """Coarse samples per ray from ``neus.final_at`` of the run on (0 = ``coarse`` throughout),
+    so that the fine samples find a grazing ray's shallow crossing of an edge once the
+    sharpness rises to ``neus.s_final`` (docs/STAGE1.md finding 30)."""
     radius: float = 1.0
     """Bounding sphere of the object in the unit frame."""
     error_frac: float = 0.5
@@ -230,7 +234,8 @@ class NeusConfig:
     """Scheduled NeuS sharpness (1/length)."""
 
     RANGES: ClassVar[dict[str, Range]] = {
-        "s_start": positive(1e9), "s_end": positive(1e9), "ramp": FRACTION}
+        "s_start": positive(1e9), "s_end": positive(1e9), "ramp": FRACTION,
+        "s_final": positive(1e9), "final_at": FRACTION}
 
     alpha: Literal["sequence", "section"] = "sequence"
     """"sequence": opacity of the interval between consecutive samples from their SDF values
@@ -242,6 +247,16 @@ class NeusConfig:
     s_end: float = 400.0
     ramp: float = 0.6
     """Fraction of ``iters`` over which s rises geometrically from s_start to s_end."""
+    s_final: float = 1600.0
+    """Sharpness at the end of the run: from ``final_at`` of ``iters`` on, s rises
+    geometrically from its scheduled value to ``s_final`` (= ``s_end``: no finishing phase).
+    At s = 400 a grazing ray through the trilinear grid's rounded edge gets too little opacity
+    (the outline of the true shape renders soft and notched), and the fit fattens the faces to
+    make it up; carving needs the softer s, so the sharp one comes last. Corpus, `preview`:
+    frame 1.05 → 0.97, table 1.04 → 0.91 px, no scene worse (docs/STAGE1.md finding 30)."""
+    final_at: float = 0.8
+    """Fraction of ``iters`` where the finishing phase (``s_final``,
+    ``sampling.coarse_final``) starts."""
 
 
 @dataclass
@@ -481,6 +496,13 @@ class ShapeConfig:
                               fix="give one fraction of iters per resolution change")
         if self.sampling.coarse_keep > self.sampling.coarse:
             raise ConfigError("shape.sampling.coarse_keep must be <= shape.sampling.coarse")
+        if 0 < self.sampling.coarse_final < self.sampling.coarse_keep:
+            raise ConfigError("shape.sampling.coarse_final must be 0 (off) or >= "
+                              "shape.sampling.coarse_keep")
+        if self.neus.s_final < self.neus.s_end:
+            raise ConfigError(f"shape.neus.s_final={self.neus.s_final} is below "
+                              f"shape.neus.s_end={self.neus.s_end}",
+                              fix="give s_final >= s_end (s_final = s_end: no finishing phase)")
         rc = self.light.init_roughness_candidates
         if any(not 0.02 < r < 1.0 for r in [self.light.init_roughness, *rc]):
             raise ConfigError(f"shape.light.init_roughness={self.light.init_roughness} and its "

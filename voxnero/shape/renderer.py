@@ -125,7 +125,8 @@ def background(model: ShapeModel, dirs: torch.Tensor, origins: torch.Tensor | No
 
 def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s: float,
                 cfg: ShapeConfig, train: bool = True, generator: torch.Generator | None = None,
-                mark: Callable[[str], None] | None = None) -> dict[str, torch.Tensor]:
+                mark: Callable[[str], None] | None = None, coarse: int | None = None
+                ) -> dict[str, torch.Tensor]:
     """Render a batch of rays.
 
     Args:
@@ -137,6 +138,8 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
         generator: RNG for the jitter.
         mark: optional profiler hook, called with a phase name at the end of each phase
             ("sampling", "grid", "neus", "heads", "shading"; see tools/bench_shape.py).
+        coarse: coarse samples per ray instead of ``cfg.sampling.coarse``
+            (:func:`voxnero.shape.schedules.coarse_samples`).
 
     Returns:
         dict with ``rgb (R, 3)`` linear radiance, ``acc (R,)``, ``normal (R, 3)`` (zero where no
@@ -161,11 +164,12 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
     o, d, n0, f0 = origins[idx], dirs[idx], near[idx], far[idx]
     # 1. coarse pass (no autograd) and fine samples
     with torch.no_grad():
-        zc = stratified(n0, f0, sc.coarse, jitter=train, generator=generator)
+        nc = sc.coarse if coarse is None else coarse
+        zc = stratified(n0, f0, nc, jitter=train, generator=generator)
         sdf_c = model.sdf.sdf((o[:, None] + zc[..., None] * d[:, None]).reshape(-1, 3))
         w_c = composite_weights(alpha_from_sdf_sequence(sdf_c.view(zc.shape), zc, s))
         zf = sample_pdf(zc, w_c, sc.fine, jitter=train, generator=generator)
-        step = max(sc.coarse // max(sc.coarse_keep, 1), 1)
+        step = max(nc // max(sc.coarse_keep, 1), 1)
         z = merge_sorted(zc[:, ::step][:, :sc.coarse_keep], zf)
     mark("sampling")
     # 2. SDF + gradient at the samples, NeuS weights

@@ -293,7 +293,8 @@ def render_image(tr: ShapeTrainer, index: int = 0, downscale: int = 2, chunk: in
     tr.model.env.prepare()
     rgbs, nors = [], []
     for i in range(0, o.shape[0], chunk):
-        out = render_rays(tr.model, o[i:i + chunk], d[i:i + chunk], s, tr.cfg, train=False)
+        out = render_rays(tr.model, o[i:i + chunk], d[i:i + chunk], s, tr.cfg, train=False,
+                          coarse=schedules.coarse_samples(tr.cfg, tr.step))
         rgbs.append(out["rgb"])
         nors.append(out["normal"] * out["acc"][:, None])
     tr.model.env.release()

@@ -29,9 +29,30 @@ def grid_res(cfg: ShapeConfig, step: int) -> int:
 
 def sharpness(cfg: ShapeConfig, step: int) -> float:
     """NeuS sharpness s (1/length, unit frame) at ``step``: geometric from ``neus.s_start`` to
-    ``neus.s_end`` over ``neus.ramp`` of the run (:func:`voxnero.shape.neus.sharpness_schedule`)."""
+    ``neus.s_end`` over ``neus.ramp`` of the run (:func:`voxnero.shape.neus.sharpness_schedule`),
+    then, from ``neus.final_at`` of the run, at least the geometric rise from the value there to
+    ``neus.s_final`` at the last step (the finishing phase; ``s_final = s_end`` leaves the ramp
+    as it is)."""
     n = cfg.neus
-    return sharpness_schedule(step / max(cfg.iters * n.ramp, 1), n.s_start, n.s_end)
+
+    def ramp(k: float) -> float:
+        return sharpness_schedule(k / max(cfg.iters * n.ramp, 1), n.s_start, n.s_end)
+
+    start = n.final_at * cfg.iters
+    if step <= start:
+        return ramp(step)
+    rise = sharpness_schedule((step - start) / max(cfg.iters - start, 1e-9), ramp(start),
+                              n.s_final)
+    return max(ramp(step), rise)
+
+
+def coarse_samples(cfg: ShapeConfig, step: int) -> int:
+    """Coarse samples per ray at ``step``: ``sampling.coarse``, or ``sampling.coarse_final``
+    (when set) from ``neus.final_at`` of the run on."""
+    sc = cfg.sampling
+    if sc.coarse_final > 0 and step >= cfg.neus.final_at * cfg.iters:
+        return sc.coarse_final
+    return sc.coarse
 
 
 def lr_factor(cfg: ShapeConfig, step: int) -> float:

@@ -261,8 +261,10 @@ def fit_psnr(tr: ShapeTrainer, chunk: int = 8192) -> float:
     o, d, target, cam = tr.pixel_batch(tr.cfg.fit_rays, gen)
     s = schedules.sharpness(tr.cfg, tr.step)
     tr.model.env.prepare()
+    nc = schedules.coarse_samples(tr.cfg, tr.step)
     rgb = torch.cat([render_rays(tr.model, o[i:i + chunk], d[i:i + chunk], s, tr.cfg,
-                                 train=False)["rgb"] for i in range(0, o.shape[0], chunk)])
+                                 train=False, coarse=nc)["rgb"]
+                     for i in range(0, o.shape[0], chunk)])
     rgb = as_photographed(tr.model, rgb, cam)
     tr.model.env.release()
     return losses.psnr(rgb, target)

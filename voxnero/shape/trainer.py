@@ -178,7 +178,8 @@ class ShapeTrainer:
         light_switch.maybe_decide_occlusion(self)
         o, d, target, cam = self.train_batch(cfg.sampling.rays)
         m.env.prepare()
-        out = render_rays(m, o, d, s, cfg, train=True, generator=self.gen)
+        out = render_rays(m, o, d, s, cfg, train=True, generator=self.gen,
+                          coarse=schedules.coarse_samples(cfg, step))
         out["rgb"] = as_photographed(m, out["rgb"], cam)
         loss, t = objective(self, out, target)
         self.pixels.feedback(losses.pixel_error(out["rgb"], target, cfg.loss.color_space))
