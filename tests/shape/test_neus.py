@@ -74,7 +74,7 @@ def test_the_finishing_phase_keeps_the_ramp_then_rises_monotonically_to_s_final(
                   [f"iters={iters}", f"neus.final_at={final_at}", f"neus.s_final={s_final}",
                    f"neus.ramp={ramp}"])
     plain = resolve(ShapeConfig, "shape", "standard",
-                    [f"iters={iters}", f"neus.s_final={cfg.neus.s_end}", f"neus.ramp={ramp}"])
+                    [f"iters={iters}", "neus.s_final=1", f"neus.ramp={ramp}"])
     s = [schedules.sharpness(cfg, k) for k in range(iters + 1)]
     assert all(math.isfinite(v) and v > 0 for v in s)
     assert all(b >= a * (1 - 1e-12) for a, b in zip(s[:-1], s[1:], strict=True))  # never falls
@@ -86,12 +86,15 @@ def test_the_finishing_phase_keeps_the_ramp_then_rises_monotonically_to_s_final(
     assert schedules.coarse_samples(cfg, iters) == cfg.sampling.coarse_final
 
 
-def test_s_final_below_s_end_is_refused_with_a_fix():
+def test_s_final_below_s_end_leaves_the_ramp_and_too_few_final_samples_are_refused():
     from voxnero.config import resolve
     from voxnero.errors import ConfigError
+    from voxnero.shape import schedules
     from voxnero.shape.config import ShapeConfig
 
-    with pytest.raises(ConfigError, match="s_final"):
-        resolve(ShapeConfig, "shape", "standard", ["neus.s_final=100"])
+    low = resolve(ShapeConfig, "shape", "standard", ["neus.s_final=100", "neus.s_end=1e7"])
+    ramp = resolve(ShapeConfig, "shape", "standard", ["neus.s_final=1e7", "neus.s_end=1e7"])
+    assert all(schedules.sharpness(low, k) == schedules.sharpness(ramp, k)
+               for k in range(0, low.iters + 1, 7))
     with pytest.raises(ConfigError, match="coarse_final"):
         resolve(ShapeConfig, "shape", "standard", ["sampling.coarse_final=4"])

@@ -249,7 +249,7 @@ class NeusConfig:
     """Fraction of ``iters`` over which s rises geometrically from s_start to s_end."""
     s_final: float = 1600.0
     """Sharpness at the end of the run: from ``final_at`` of ``iters`` on, s rises
-    geometrically from its scheduled value to ``s_final`` (= ``s_end``: no finishing phase).
+    geometrically from its scheduled value to ``s_final`` (≤ ``s_end``: no rise).
     At s = 400 a grazing ray through the trilinear grid's rounded edge gets too little opacity
     (the outline of the true shape renders soft and notched), and the fit fattens the faces to
     make it up; carving needs the softer s, so the sharp one comes last. Corpus, `preview`:
@@ -499,10 +499,6 @@ class ShapeConfig:
         if 0 < self.sampling.coarse_final < self.sampling.coarse_keep:
             raise ConfigError("shape.sampling.coarse_final must be 0 (off) or >= "
                               "shape.sampling.coarse_keep")
-        if self.neus.s_final < self.neus.s_end:
-            raise ConfigError(f"shape.neus.s_final={self.neus.s_final} is below "
-                              f"shape.neus.s_end={self.neus.s_end}",
-                              fix="give s_final >= s_end (s_final = s_end: no finishing phase)")
         rc = self.light.init_roughness_candidates
         if any(not 0.02 < r < 1.0 for r in [self.light.init_roughness, *rc]):
             raise ConfigError(f"shape.light.init_roughness={self.light.init_roughness} and its "

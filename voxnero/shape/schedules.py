@@ -31,7 +31,7 @@ def sharpness(cfg: ShapeConfig, step: int) -> float:
     """NeuS sharpness s (1/length, unit frame) at ``step``: geometric from ``neus.s_start`` to
     ``neus.s_end`` over ``neus.ramp`` of the run (:func:`voxnero.shape.neus.sharpness_schedule`),
     then, from ``neus.final_at`` of the run, at least the geometric rise from the value there to
-    ``neus.s_final`` at the last step (the finishing phase; ``s_final = s_end`` leaves the ramp
+    ``neus.s_final`` at the last step (the finishing phase; ``s_final ≤ s_end`` leaves the ramp
     as it is)."""
     n = cfg.neus
 
