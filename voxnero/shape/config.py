@@ -253,7 +253,8 @@ class NeusConfig:
     At s = 400 a grazing ray through the trilinear grid's rounded edge gets too little opacity
     (the outline of the true shape renders soft and notched), and the fit fattens the faces to
     make it up; carving needs the softer s, so the sharp one comes last. Corpus, `preview`:
-    frame 1.05 → 0.97, table 1.04 → 0.91 px, no scene worse (docs/STAGE1.md finding 30)."""
+    frame 1.05 → 0.97, table 1.04 → 0.91 px, no scene worse by more than 0.02 px (docs/STAGE1.md
+    finding 30)."""
     final_at: float = 0.8
     """Fraction of ``iters`` where the finishing phase (``s_final``,
     ``sampling.coarse_final``) starts."""
