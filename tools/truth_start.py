@@ -73,6 +73,7 @@ def render_views(tr, out: Path, ss: int = 1, chunk: int = 8192) -> None:
     cams = tr.cams
     corner = pixel_centers(cams.height, cams.width, device=cams.device).reshape(-1, 2) - 0.5
     s = schedules.sharpness(tr.cfg, tr.step)
+    nc = schedules.coarse_samples(tr.cfg, tr.step)
     tr.model.env.prepare()
     with torch.no_grad():
         for i, name in enumerate(tr.scene.split("train").names):
@@ -84,7 +85,8 @@ def render_views(tr, out: Path, ss: int = 1, chunk: int = 8192) -> None:
                     o, d = pixel_rays(cams, torch.full((pix.shape[0],), i), pix)
                     for j in range(0, o.shape[0], chunk):
                         acc[j:j + chunk] += render_rays(tr.model, o[j:j + chunk], d[j:j + chunk],
-                                                        s, tr.cfg, train=False)["rgb"].clamp(0, 1)
+                                                        s, tr.cfg, train=False,
+                                                        coarse=nc)["rgb"].clamp(0, 1)
             img = (acc / (ss * ss)).view(cams.height, cams.width, 3).cpu().numpy()
             save_linear_png(out / f"{name}.png", img)
     tr.model.env.release()

@@ -93,6 +93,39 @@ def z_depth(position: np.ndarray, coverage: np.ndarray, c2w_gl: np.ndarray) -> n
     return np.where(coverage > 1e-6, d, 0.0).astype(np.float32)
 
 
+def read_mesh(path: Path, recompute_normals: bool = False) -> shapes.Mesh:
+    """A PLY as a :class:`shapes.Mesh` (its stored vertex normals, or the triangles' area-weighted
+    ones with ``recompute_normals``)."""
+    import open3d as o3d
+
+    m = o3d.io.read_triangle_mesh(str(path))
+    if recompute_normals:
+        m.compute_vertex_normals()
+    return shapes.Mesh(np.asarray(m.vertices), np.asarray(m.triangles),
+                       np.asarray(m.vertex_normals))
+
+
+def scene_cameras(spec: SceneSpec, radius: float) -> tuple[dict[str, np.ndarray], float]:
+    """OpenGL camera-to-world matrices ``{"train": (96, 4, 4), "test": (16, 4, 4)}`` of a scene
+    whose true mesh reaches ``radius`` from the origin, and the smallest angle (degrees) from a
+    test view to a training view."""
+    dist = rigs.distance_for_fill(radius, spec.fill)
+    d_train = rigs.train_directions(spec.rig, N_TRAIN)
+    d_test, min_angle = rigs.test_directions(spec.rig, d_train, N_TEST,
+                                             seed=sum(map(ord, spec.name)))
+    return ({"train": rigs.look_at_gl(d_train * dist), "test": rigs.look_at_gl(d_test * dist)},
+            min_angle)
+
+
+def truth_maps(spec: SceneSpec, geo: dict[str, np.ndarray], c2w_gl: np.ndarray
+               ) -> dict[str, np.ndarray]:
+    """The test view's ground-truth maps (normal, z-depth, albedo, metallic, roughness) from a
+    :meth:`render.Renderer.geometry` pass ``geo``."""
+    return {"normal": geo["normal"],
+            "depth": z_depth(geo["position"], geo["coverage"], c2w_gl),
+            **material_maps(spec, geo["position"], geo["coverage"])}
+
+
 def background_check(env: np.ndarray, rgb: np.ndarray, coverage: np.ndarray, c2w_gl: np.ndarray,
                      focal: float) -> float:
     """PSNR (dB, sRGB, clipped) of the rendered background against the env map looked up along
@@ -143,10 +176,7 @@ def build_scene(spec: SceneSpec, out: Path, shared: Path, spp: dict[str, int],
     # geometry: the ground-truth mesh (cached), its genus
     mesh_path = root / "gt" / "mesh.ply"
     if mesh_path.is_file():
-        import open3d as o3d
-        m = o3d.io.read_triangle_mesh(str(mesh_path))
-        mesh = shapes.Mesh(np.asarray(m.vertices), np.asarray(m.triangles),
-                           np.asarray(m.vertex_normals))
+        mesh = read_mesh(mesh_path)
     else:
         mesh = spec.shape()
         write_mesh(mesh_path, mesh.vertices, mesh.triangles, mesh.normals)
@@ -156,10 +186,7 @@ def build_scene(spec: SceneSpec, out: Path, shared: Path, spp: dict[str, int],
     # cameras
     dist = rigs.distance_for_fill(radius, spec.fill)
     focal = 0.5 * WIDTH / math.tan(math.radians(rigs.FOV_X_DEG) / 2)
-    d_train = rigs.train_directions(spec.rig, N_TRAIN)
-    d_test, min_angle = rigs.test_directions(spec.rig, d_train, N_TEST,
-                                             seed=sum(map(ord, spec.name)))
-    c2w = {"train": rigs.look_at_gl(d_train * dist), "test": rigs.look_at_gl(d_test * dist)}
+    c2w, min_angle = scene_cameras(spec, radius)
     flip = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL <-> OpenCV camera axes
     for split in ("train", "test"):
         write_transforms(root, split, c2w[split] @ flip, WIDTH, HEIGHT, focal)
@@ -198,10 +225,7 @@ def build_scene(spec: SceneSpec, out: Path, shared: Path, spp: dict[str, int],
             bg_psnr = background_check(envs[spec.env], rgb, geo["coverage"], c2w["test"][0],
                                        focal)
         write_view(root, "test", k, rgb, geo["coverage"], exr=True)
-        maps = {"normal": geo["normal"],
-                "depth": z_depth(geo["position"], geo["coverage"], c2w["test"][k]),
-                **material_maps(spec, geo["position"], geo["coverage"])}
-        write_gt_maps(root, k, maps)
+        write_gt_maps(root, k, truth_maps(spec, geo, c2w["test"][k]))
     timings["test"] = time.time() - t
     pts_all, nrm_all = np.concatenate(pts), np.concatenate(nrm)
     pick = np.random.default_rng(0).permutation(len(pts_all))[:50000]

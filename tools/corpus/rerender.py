@@ -46,30 +46,23 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
 
     import numpy as np
-    import open3d as o3d
     from tqdm import tqdm
 
-    from tools.corpus import build, envmaps, render, rigs, shapes
+    from tools.corpus import build, envmaps, render, rigs
     from tools.corpus.scenes import SCENES
-    from voxnero.synth.writer import write_gt_maps, write_view
+    from voxnero.synth.writer import write_gt_maps, write_mesh, write_view
 
     specs = {s.name: s for s in SCENES}
     if a.scene.name not in specs or not (a.scene / "gt" / "mesh.ply").is_file():
         ap.error(f"{a.scene}: not a built corpus scene (names: {', '.join(specs)})")
     spec = specs[a.scene.name]
-    m = o3d.io.read_triangle_mesh(str(a.scene / "gt" / "mesh.ply"))
-    mesh = shapes.Mesh(np.asarray(m.vertices), np.asarray(m.triangles),
-                       np.asarray(m.vertex_normals))
-    dist = rigs.distance_for_fill(float(np.linalg.norm(mesh.vertices, axis=1).max()), spec.fill)
-    c2w = rigs.look_at_gl(rigs.train_directions(spec.rig, build.N_TRAIN) * dist)
+    mesh = build.read_mesh(a.scene / "gt" / "mesh.ply")
+    c2w, _ = build.scene_cameras(spec, float(np.linalg.norm(mesh.vertices, axis=1).max()))
     env = envmaps.make(spec.env, a.shared or build.DEFAULT_SHARED)
     if a.mesh is not None:  # after the cameras: they are the scene's, not fitted to this mesh
-        m = o3d.io.read_triangle_mesh(str(a.mesh))
-        if len(m.triangles) == 0:
+        mesh = build.read_mesh(a.mesh, recompute_normals=True)
+        if len(mesh.triangles) == 0:
             ap.error(f"{a.mesh}: no triangles")
-        m.compute_vertex_normals()
-        mesh = shapes.Mesh(np.asarray(m.vertices), np.asarray(m.triangles),
-                           np.asarray(m.vertex_normals))
     if a.clamp is not None:
         cap = float(np.quantile(env[..., :3].max(-1), a.clamp))
         print(f"map clamped at {cap:.4g} (its maximum {env.max():.4g})")
@@ -102,21 +95,15 @@ def main(argv: list[str] | None = None) -> int:
             if (f.name != "mesh.ply" and not f.name.startswith("test_")
                     and not (a.out / "gt" / f.name).exists()):
                 os.symlink(f.resolve(), a.out / "gt" / f.name)
-        o3d.io.write_triangle_mesh(str(a.out / "gt" / "mesh.ply"), m)
-        c2w_test = rigs.look_at_gl(rigs.test_directions(
-            spec.rig, rigs.train_directions(spec.rig, build.N_TRAIN), build.N_TEST,
-            seed=sum(map(ord, spec.name)))[0] * dist)
+        write_mesh(a.out / "gt" / "mesh.ply", mesh.vertices, mesh.triangles, mesh.normals)
         for k in tqdm(range(build.N_TEST), desc=f"{a.out.name} test"):
-            geo = r.geometry(c2w_test[k], 32, seed=1000 + k)
-            write_view(a.out, "test", k, r.radiance(c2w_test[k], 64, seed=1000 + k),
+            geo = r.geometry(c2w["test"][k], 32, seed=1000 + k)
+            write_view(a.out, "test", k, r.radiance(c2w["test"][k], 64, seed=1000 + k),
                        geo["coverage"], exr=True)
-            write_gt_maps(a.out, k, {
-                "normal": geo["normal"],
-                "depth": build.z_depth(geo["position"], geo["coverage"], c2w_test[k]),
-                **build.material_maps(spec, geo["position"], geo["coverage"])})
+            write_gt_maps(a.out, k, build.truth_maps(spec, geo, c2w["test"][k]))
     for k in tqdm(range(build.N_TRAIN), desc=a.out.name):
-        rgb = r.radiance(c2w[k], 128, seed=k)
-        cov = r.geometry(c2w[k], 32, seed=k)["coverage"]
+        rgb = r.radiance(c2w["train"][k], 128, seed=k)
+        cov = r.geometry(c2w["train"][k], 32, seed=k)["coverage"]
         write_view(a.out, "train", k, rgb, cov, exr=False)
     print(f"wrote {a.out}")
     return 0

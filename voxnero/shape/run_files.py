@@ -245,6 +245,7 @@ def clip_to_sphere(g: torch.Tensor, bounds: torch.Tensor, radius: float) -> torc
     return torch.maximum(g, outside[None])
 
 
+@torch.no_grad()
 def extract(model: ShapeModel, res: int | None = None, clean: bool = True,
             radius: float | None = None):
     """Marching cubes of a model's SDF grid (resampled to ``res``), unit frame; an Open3D
