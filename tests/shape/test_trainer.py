@@ -539,3 +539,33 @@ def test_error_guided_run_resumes_identically(scene, tmp_path):
     resumed = ShapeTrainer(cfg, scene, tmp_path / "b", progress=False, log=lambda s: None)
     resumed.run()
     assert torch.equal(resumed.model.sdf.grid, straight.model.sdf.grid)
+
+
+def test_training_steps_render_with_the_scheduled_coarse_samples_and_sharpness(scene,
+                                                                                tmp_path,
+                                                                                monkeypatch):
+    """The finishing phase reaches the training renders: before ``neus.final_at`` a step
+    renders with ``sampling.coarse`` samples at the ramp's sharpness, in the phase with
+    ``sampling.coarse_final`` and the rising sharpness (docs/STAGE1.md finding 30)."""
+    import voxnero.shape.trainer as trainer_mod
+
+    cfg = from_dict(ShapeConfig, {"iters": 10, "eval_every_s": 0, "preview_every": 0,
+                                  "grid": {"res": [24], "upsample_at": []},
+                                  "sampling": {"rays": 256, "coarse": 24, "fine": 8,
+                                               "coarse_keep": 12, "coarse_final": 48},
+                                  "light": {"env_height": 8}})
+    seen: list[tuple[int | None, float]] = []
+    real = trainer_mod.render_rays
+
+    def spy(model, o, d, s, c, *args, coarse=None, **kw):
+        seen.append((coarse, s))
+        return real(model, o, d, s, c, *args, coarse=coarse, **kw)
+
+    monkeypatch.setattr(trainer_mod, "render_rays", spy)
+    tr = ShapeTrainer(cfg, scene, tmp_path / "run", progress=False, log=lambda m: None)
+    for step in (0, 9):
+        tr.step = step
+        tr.train_step()
+    assert seen[0] == (24, schedules.sharpness(cfg, 0))
+    assert seen[1][0] == 48
+    assert seen[1][1] == schedules.sharpness(cfg, 9) > cfg.neus.s_end
