@@ -61,7 +61,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True, help="PNG to write")
     args = ap.parse_args(argv)
     scenes = sorted(p.parent for p in args.corpus.glob("*/scene_info.json"))
-    cols = ["photo (test view)", "true mesh"] + [f"`{p}` mesh" for p in args.presets]
+    # column titles name the preset only: overrides (e.g. the carved start alone) are the caption's
+    cols = ["photo (test view)", "true mesh"] + [f"`{p.split()[0]}` mesh" for p in args.presets]
     fig, axes = plt.subplots(len(scenes), len(cols), figsize=(2.0 * len(cols),
                                                                2.0 * len(scenes)), squeeze=False)
     for r, root in enumerate(scenes):
