@@ -3,7 +3,8 @@
 
 Same cameras, shape, materials, map, sampler and spp as ``tools/corpus/build.py``, with the
 path depth (``--max-depth 2``: direct light only, no inter-reflection), a Lambertian BSDF
-(``--lambert``), the environment map clamped at a quantile of its texels' maximum
+(``--lambert``), a uniform environment of one radiance (``--uniform 1``: no sun, no sky
+pattern; the shading left is the object's own occlusion), the environment map clamped at a quantile of its texels' maximum
 channel (``--clamp 0.99`` removes a sun) and/or another shape (``--mesh``: e.g. a frozen
 stage-1 run's mesh, so that the photos show exactly what the grid can represent; the cameras
 stay the scene's, and the test views' masks, depth and normals and ``OUT/gt/mesh.ply`` are
@@ -37,6 +38,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-depth", type=int, default=16, help="Mitsuba path depth (corpus: 16)")
     ap.add_argument("--clamp", type=float, default=None,
                     help="clamp the map at this quantile of its texels' maximum channel")
+    ap.add_argument("--uniform", type=float, default=None,
+                    help="replace the map by this constant linear radiance (every channel)")
     ap.add_argument("--lambert", action="store_true",
                     help="a two-sided Lambertian BSDF of the same base colour instead of the "
                          "principled one (no specular lobe at all)")
@@ -67,6 +70,10 @@ def main(argv: list[str] | None = None) -> int:
         cap = float(np.quantile(env[..., :3].max(-1), a.clamp))
         print(f"map clamped at {cap:.4g} (its maximum {env.max():.4g})")
         env = np.minimum(env, cap)
+    if a.uniform is not None:
+        if not a.uniform > 0:
+            ap.error(f"--uniform {a.uniform}: the radiance must be positive")
+        env = np.full_like(env, a.uniform)
     render.set_variant()
     if a.lambert:
         principled = render._bsdf
