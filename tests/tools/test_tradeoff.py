@@ -120,6 +120,17 @@ def test_plot_is_a_png_of_the_requested_size(tmp_path):
     assert _png_size(tmp_path / "c.png") == (1100, 450)
 
 
+def test_a_point_run_on_many_scenes_is_named_once_per_panel():
+    """A corpus sweep runs one point on every scene: its name labels one marker, not ten;
+    presets keep their own bold names and a point without the panel's metric gets none."""
+    summ = T.summarise(_synthetic_rows())
+    named = T.labelled_points(summ, "chamfer")
+    assert sorted(p for _, p in named) == ["iters 800", "rays | 2048"]
+    assert ("sphere_gold", "iters 800") in named  # its first scene in the table
+    # only the stage-2 point has a PSNR
+    assert {p for _, p in T.labelled_points(summ, "psnr")} == {"rays | 2048"}
+
+
 # ------------------------------------------------------------------------------ points
 
 

@@ -4,14 +4,14 @@
 Same cameras, shape, materials, map, sampler and spp as ``tools/corpus/build.py``, with the
 path depth (``--max-depth 2``: direct light only, no inter-reflection), a Lambertian BSDF
 (``--lambert``), a uniform environment of one radiance (``--uniform 1``: no sun, no sky
-pattern; the shading left is the object's own occlusion), the environment map clamped at a quantile of its texels' maximum
-channel (``--clamp 0.99`` removes a sun) and/or another shape (``--mesh``: e.g. a frozen
-stage-1 run's mesh, so that the photos show exactly what the grid can represent; the cameras
-stay the scene's, and the test views' masks, depth and normals and ``OUT/gt/mesh.ply`` are
-re-rendered from that mesh, so ``voxnero eval`` scores against it) set here. Writes
-``OUT/train/`` and ``OUT/train_mask/`` and links every other file of the scene, so ``OUT``
-is a scene that trains and evaluates like the original (docs/STAGE1.md, findings 29–30: on
-which photos a stage-1 run still drifts names the effect it cannot render). At depth 16 and
+pattern; the shading left is the object's own occlusion), the environment map clamped at a
+quantile of its texels' maximum channel (``--clamp 0.99`` removes a sun) and/or another shape
+(``--mesh``: e.g. a frozen stage-1 run's mesh, so that the photos show exactly what the grid
+can represent; the cameras stay the scene's, and the test views' masks, depth and normals and
+``OUT/gt/mesh.ply`` are re-rendered from that mesh, so ``voxnero eval`` scores against it) set
+here. Writes ``OUT/train/`` and ``OUT/train_mask/`` and links every other file of the scene, so
+``OUT`` is a scene that trains and evaluates like the original (docs/STAGE1.md, findings 29–31:
+on which photos a stage-1 run still drifts names the effect it cannot render). At depth 16 and
 no clamp it reproduces the corpus's photos (mean 8-bit difference 0.01 on frame_red).
 
 Example::

@@ -35,6 +35,7 @@ from tools.tradeoff.report import (
     Summary,
     _num,
     is_done,
+    labelled_points,
     merge_rows,
     parse_markdown,
     plot_panels,
@@ -68,5 +69,5 @@ __all__ = [
     "plot_panels", "points_for_stage", "read_csv", "render_check", "render_markdown",
     "replace_between_markers",
     "resolve_points", "row_key", "run_child", "summarise", "sweep", "update_readme", "write_csv",
-    "write_outputs", "write_plot",
+    "write_outputs", "write_plot", "labelled_points",
 ]

@@ -199,13 +199,29 @@ def plot_panels(summaries: Sequence[Summary]) -> list[tuple[str, str]]:
     return [("chamfer", "Chamfer (lower is better)"), second]
 
 
+def labelled_points(summaries: Sequence[Summary], metric: str) -> set[tuple[str, str]]:
+    """The ``(scene, point)`` pairs whose marker gets the point's name in a panel of ``metric``:
+    a non-preset point's name once, at its first scene with a value (a corpus sweep runs the
+    same point on ten scenes: ten equal labels piled on each other said nothing more)."""
+    seen: set[str] = set()
+    out: set[tuple[str, str]] = set()
+    for s in summaries:
+        v = s.values.get(metric, math.nan)
+        if s.is_preset or s.point in seen or math.isnan(v):
+            continue
+        seen.add(s.point)
+        out.add((s.scene, s.point))
+    return out
+
+
 def write_plot(summaries: Sequence[Summary], path: Path, size: tuple[float, float] = (11, 4.5),
                dpi: int = 100) -> None:
     """``tradeoff.png``: time vs Chamfer and time vs PSNR (the normal error for a stage-1
     sweep, :func:`plot_panels`), log time, one marker per scene.
 
     Presets are large filled markers with their name in bold beside them; other points small,
-    hollow, with their name in small grey type. The image is ``size × dpi`` pixels exactly
+    hollow, with their name in small grey type beside one of their markers
+    (:func:`labelled_points`). The image is ``size × dpi`` pixels exactly
     (1100 × 450 by default).
     """
     import matplotlib
@@ -219,6 +235,7 @@ def write_plot(summaries: Sequence[Summary], path: Path, size: tuple[float, floa
     fig, axes = plt.subplots(1, 2, figsize=size, dpi=dpi)
     for ax, (metric, label) in zip(axes, plot_panels(summaries), strict=True):
         any_pt = False
+        named = labelled_points(summaries, metric)
         for i, sc in enumerate(scenes):
             mk = markers[i % len(markers)]
             pts = [s for s in summaries if s.scene == sc and not math.isnan(s.values[metric])
@@ -235,7 +252,7 @@ def write_plot(summaries: Sequence[Summary], path: Path, size: tuple[float, floa
                            [s.values[metric] for s in others], marker=mk, facecolors="none",
                            edgecolors=col, s=36, label=leg)
                 leg = None
-                for s in others:
+                for s in (s for s in others if (s.scene, s.point) in named):
                     ax.annotate(_short(s.point), (s.values["time_s"], s.values[metric]),
                                 xytext=(4, -9),
                                 textcoords="offset points", fontsize=6, color="0.35"
