@@ -36,10 +36,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("scene", type=Path, help="a built corpus scene folder")
     ap.add_argument("out", type=Path, help="the new scene folder")
     ap.add_argument("--max-depth", type=int, default=16, help="Mitsuba path depth (corpus: 16)")
-    ap.add_argument("--clamp", type=float, default=None,
-                    help="clamp the map at this quantile of its texels' maximum channel")
-    ap.add_argument("--uniform", type=float, default=None,
-                    help="replace the map by this constant linear radiance (every channel)")
+    light = ap.add_mutually_exclusive_group()  # a uniform map has nothing left to clamp
+    light.add_argument("--clamp", type=float, default=None,
+                       help="clamp the map at this quantile of its texels' maximum channel")
+    light.add_argument("--uniform", type=float, default=None,
+                       help="replace the map by this constant linear radiance (every channel)")
     ap.add_argument("--lambert", action="store_true",
                     help="a two-sided Lambertian BSDF of the same base colour instead of the "
                          "principled one (no specular lobe at all)")

@@ -64,10 +64,10 @@ from tools.tradeoff.runner import (
 __all__ = [
     "CHECKED", "DEFAULT_SPEC", "FIELDS", "MARK_BEGIN", "MARK_END", "METRICS", "REPO", "STAGES",
     "CheckResult", "ChildResult", "Point", "Runner", "Summary", "Task", "_machine_note", "_num",
-    "_slug", "check", "child_env", "compare", "is_done", "kill_children", "load_reference",
-    "load_spec", "main", "merge_rows", "parse_markdown", "parse_point", "plan",
+    "_slug", "check", "child_env", "compare", "is_done", "kill_children", "labelled_points",
+    "load_reference", "load_spec", "main", "merge_rows", "parse_markdown", "parse_point", "plan",
     "plot_panels", "points_for_stage", "read_csv", "render_check", "render_markdown",
     "replace_between_markers",
     "resolve_points", "row_key", "run_child", "summarise", "sweep", "update_readme", "write_csv",
-    "write_outputs", "write_plot", "labelled_points",
+    "write_outputs", "write_plot",
 ]
