@@ -569,3 +569,27 @@ def test_training_steps_render_with_the_scheduled_coarse_samples_and_sharpness(s
     assert seen[0] == (24, schedules.sharpness(cfg, 0))
     assert seen[1][0] == 48
     assert seen[1][1] == schedules.sharpness(cfg, 9) > cfg.neus.s_end
+
+
+def test_coarse_step_acts_in_the_finishing_phase_only(scene, tmp_path):
+    """``grid.coarse_step``: before ``neus.final_at`` a run is the run without it, step for
+    step; the phase's first step adds the coarse step, whose first Adam step is exactly the
+    SDF rate on every block the rays reached (reliability 1 on a first step: m̂²/v̂ = g²/g²)."""
+    grids, rates = {}, {}
+    for k in (0, 4):
+        cfg = _cfg(4)
+        cfg.grid.res, cfg.grid.upsample_at, cfg.optim.warmup = [32], [], 0
+        cfg.grid.coarse_step, cfg.neus.final_at = k, 0.5
+        torch.manual_seed(0)
+        tr = ShapeTrainer(cfg, scene, tmp_path / f"run{k}", progress=False, log=lambda m: None)
+        snaps = []
+        for _ in range(3):
+            tr.train_step()
+            tr.step += 1
+            snaps.append(tr.model.sdf.grid.detach().clone())
+        grids[k] = snaps
+        rates[k] = next(g["lr"] for g in tr.opt.param_groups if g["name"] == "sdf")
+    for i in (0, 1):  # steps 0 and 1: before the phase (final_at 0.5 of 4 steps = step 2)
+        torch.testing.assert_close(grids[4][i], grids[0][i], rtol=0, atol=1e-6)
+    diff = (grids[4][2] - grids[0][2]).abs()
+    torch.testing.assert_close(diff.max(), torch.tensor(rates[4]), rtol=1e-3, atol=0)

@@ -29,6 +29,7 @@ from voxnero.safety import fingerprint
 from voxnero.safety.guard import NonFiniteGuard, nonfinite
 from voxnero.safety.stop import GracefulStop
 from voxnero.shape import adaptive, light_switch, losses, run_files, schedules, starts
+from voxnero.shape.coarse_step import CoarseStep
 from voxnero.shape.config import ShapeConfig
 from voxnero.shape.objective import objective
 from voxnero.shape.occlusion import OcclusionTargets
@@ -91,6 +92,8 @@ class ShapeTrainer:
         self.opt = self.make_optimizer()
         self.pixels = self.make_pixel_sampler()
         """The training batches' pixels (uniform, or partly where the fit is worst)."""
+        self.coarse_step: CoarseStep | None = None
+        """The finishing phase's coarse SDF step (``grid.coarse_step``), made at its first use."""
         self.step, self.train_time, self.last_eval = 0, 0.0, 0.0
         self.occ_targets: OcclusionTargets | None = None
         self.eval_split = None
@@ -196,10 +199,17 @@ class ShapeTrainer:
             self.opt.zero_grad(set_to_none=True)
             return self._skip("non-finite gradient", s)
         before = g.detach().clone() if cfg.grid.update_smooth > 0 else None
+        coarse = (g.grad.detach().clone() if cfg.grid.coarse_step > 0 and g.grad is not None
+                  and step >= schedules.at(cfg.neus.final_at, cfg) else None)
         self.opt.step()
         if before is not None:
             with torch.no_grad():
                 g[0] = before[0] + gaussian_blur3d(g[0] - before[0], cfg.grid.update_smooth)
+        if coarse is not None:
+            if self.coarse_step is None:
+                self.coarse_step = CoarseStep(cfg.grid.coarse_step)
+            lr = next(x["lr"] for x in self.opt.param_groups if x.get("name") == "sdf")
+            self.coarse_step.step(g.data, coarse, lr)
         m.env.release()
         return {"loss": float(loss.detach()), **{k: float(v.detach()) for k, v in t.items()},
                 "psnr": losses.psnr(out["rgb"], target), "s": s, "res": m.sdf.res}
