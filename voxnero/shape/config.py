@@ -88,7 +88,7 @@ class GridConfig:
     grid, so a face follows the outline that pulls its edges. Corpus `preview`, carved start,
     k = 8 (docs/STAGE1.md finding 32): median of the ten scenes 0.81 -> 0.72 px (table 0.79 ->
     0.63, frame 0.95 -> 0.86), but the duck and the bunny +0.04 px; `standard` table 0.86 ->
-    0.74, frame 1.00 -> 0.93, duck 0.24 -> 0.21 px, its other scenes not measured yet, hence
+    0.74, frame 1.00 -> 0.93, gear 0.96 -> 0.88, duck 0.24 -> 0.21 px, six not yet, hence
     off. Its moments are not checkpointed: a resumed run restarts them."""
     feat_res: int = 8
     feat_dim: int = 8
