@@ -199,17 +199,17 @@ class ShapeTrainer:
             self.opt.zero_grad(set_to_none=True)
             return self._skip("non-finite gradient", s)
         before = g.detach().clone() if cfg.grid.update_smooth > 0 else None
-        coarse = (g.grad.detach().clone() if cfg.grid.coarse_step > 0 and g.grad is not None
-                  and step >= schedules.at(cfg.neus.final_at, cfg) else None)
+        coarse = (cfg.grid.coarse_step > 0 and g.grad is not None
+                  and step >= schedules.at(cfg.neus.final_at, cfg))
         self.opt.step()
         if before is not None:
             with torch.no_grad():
                 g[0] = before[0] + gaussian_blur3d(g[0] - before[0], cfg.grid.update_smooth)
-        if coarse is not None:
+        if coarse:  # Adam leaves .grad as it was: no copy needed
             if self.coarse_step is None:
                 self.coarse_step = CoarseStep(cfg.grid.coarse_step)
             lr = next(x["lr"] for x in self.opt.param_groups if x.get("name") == "sdf")
-            self.coarse_step.step(g.data, coarse, lr)
+            self.coarse_step.step(g.data, g.grad, lr)
         m.env.release()
         return {"loss": float(loss.detach()), **{k: float(v.detach()) for k, v in t.items()},
                 "psnr": losses.psnr(out["rgb"], target), "s": s, "res": m.sdf.res}
