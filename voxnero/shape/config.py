@@ -85,11 +85,12 @@ class GridConfig:
     """Block side k (voxels) of a second SDF step in the finishing phase (from
     ``neus.final_at``; 0 = off, :mod:`voxnero.shape.coarse_step`): the SDF gradient averaged
     over k³ blocks gets its own Adam step, scaled by its reliability m²/v and upsampled onto the
-    grid, so a face follows the outline that pulls its edges. Corpus `preview`, carved start,
-    k = 8 (docs/STAGE1.md finding 32): median of the ten scenes 0.81 -> 0.72 px (table 0.79 ->
-    0.63, frame 0.95 -> 0.86), but the duck and the bunny +0.04 px; `standard` table 0.86 ->
-    0.74, frame 1.00 -> 0.93, gear 0.96 -> 0.88, duck 0.24 -> 0.21 px, six not yet, hence
-    off. Its moments are not checkpointed: a resumed run restarts them."""
+    grid, so a face follows the outline that pulls its edges. k = 8 in the preview, standard and
+    quality presets (docs/STAGE1.md finding 32), carved start, medians of the ten corpus scenes:
+    `preview` 0.81 -> 0.72 px (table 0.79 -> 0.63), `standard` 0.80 -> 0.74 px (table 0.86 ->
+    0.74, gear 0.96 -> 0.88), the worst (the bowl) unchanged; the duck and the bunny lose 0.04 px
+    at `preview`. Off here so that the tiny test preset and bare configs keep their behaviour.
+    Its moments are not checkpointed: a resumed run restarts them."""
     feat_res: int = 8
     feat_dim: int = 8
     res_auto: bool = True
