@@ -9,6 +9,7 @@ import signal
 import numpy as np
 
 from tests.safety.safety_helpers import blender_scene, run_cli, sdf_of, shape_argv
+from voxnero.safety import stop as stop_mod
 from voxnero.safety.stop import GracefulStop
 from voxnero.shape import trainer as trainer_mod
 
@@ -52,3 +53,25 @@ def test_a_second_signal_stops_at_once_without_a_checkpoint():
         except KeyboardInterrupt:
             assert stop.forced
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_a_repeated_sigterm_is_one_request_unless_it_comes_late(monkeypatch):
+    """The kernel's parent-death SIGTERM and a supervisor's arrive together: that must still
+    checkpoint at the end of the step. A SIGTERM after REPEAT_S, or a Ctrl-C, forces."""
+    with GracefulStop() as stop:
+        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert stop.flag and not stop.forced
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            raise AssertionError("Ctrl-C after a SIGTERM did not interrupt")
+        except KeyboardInterrupt:
+            assert stop.forced
+    monkeypatch.setattr(stop_mod, "REPEAT_S", 0.0)
+    with GracefulStop() as stop:
+        os.kill(os.getpid(), signal.SIGTERM)
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            raise AssertionError("a late second SIGTERM did not interrupt")
+        except KeyboardInterrupt:
+            assert stop.forced

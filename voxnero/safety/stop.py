@@ -4,15 +4,21 @@ A signal lands anywhere, often inside a step (half an optimiser update, random n
 a checkpoint taken there would not resume to the run that was not interrupted. So the handler
 only sets a flag; the loop checks it after each complete step, saves a checkpoint and raises
 :class:`KeyboardInterrupt`. A second signal before that stops at once (``forced``): the loop
-then saves nothing and the last checkpoint stays.
+then saves nothing and the last checkpoint stays. A SIGTERM that repeats a SIGTERM within
+:data:`REPEAT_S` is the same request, not a second one: a supervisor that dies often sends two
+(``voxnero batch``'s stage process gets the kernel's ``PR_SET_PDEATHSIG`` SIGTERM and Ray's own
+when a worker is killed), and the step would otherwise be cut short with no checkpoint.
 """
 
 from __future__ import annotations
 
 import signal
+import time
 from typing import Any
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
+REPEAT_S = 2.0
+"""Seconds within which a repeated SIGTERM counts as the first one (Ctrl-C twice still forces)."""
 
 
 class GracefulStop:
@@ -28,6 +34,7 @@ class GracefulStop:
         self.flag = False
         self.forced = False
         self.signum: int | None = None
+        self._first_at = 0.0
         self._old: dict[int, Any] = {}
 
     def __enter__(self) -> GracefulStop:
@@ -39,10 +46,14 @@ class GracefulStop:
         return self
 
     def _handler(self, signum: int, frame: Any) -> None:
+        now = time.monotonic()
         if self.flag:
+            if (signum == self.signum == signal.SIGTERM
+                    and now - self._first_at < REPEAT_S):
+                return  # the same stop request, sent twice
             self.forced = True
             raise KeyboardInterrupt
-        self.flag, self.signum = True, signum
+        self.flag, self.signum, self._first_at = True, signum, now
 
     def __exit__(self, *exc: Any) -> None:
         for s, old in self._old.items():
