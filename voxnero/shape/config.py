@@ -87,8 +87,8 @@ class GridConfig:
     over k³ blocks gets its own Adam step, scaled by its reliability m²/v and upsampled onto the
     grid, so a face follows the outline that pulls its edges. k = 8 in the preview, standard and
     quality presets (docs/STAGE1.md finding 32), carved start, medians of the ten corpus scenes:
-    `preview` 0.81 -> 0.72 px (table 0.79 -> 0.63), `standard` 0.80 -> 0.73 px (table 0.86 ->
-    0.74, gear 0.96 -> 0.88), the worst (the bowl) unchanged; the duck and the bunny lose 0.04 px
+    `preview` 0.81 -> 0.72 px (table 0.79 -> 0.63), `standard` 0.80 -> 0.75 px (table 0.86 ->
+    0.77, gear 0.96 -> 0.88), the worst (the bowl) unchanged; the duck and the bunny lose 0.04 px
     at `preview`. Off here so that the tiny test preset and bare configs keep their behaviour.
     Its moments are not checkpointed: a resumed run restarts them."""
     feat_res: int = 8
