@@ -19,10 +19,6 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-BETAS = (0.9, 0.99)
-"""Adam's moment decays, those of the trainer's optimiser (:meth:`voxnero.shape.trainer.
-ShapeTrainer.make_optimizer`)."""
-
 
 class CoarseStep:
     """Adam moments of the block-averaged SDF gradient and the gated, upsampled step.
@@ -30,12 +26,15 @@ class CoarseStep:
     Args:
         factor: block side ``k`` in voxels (the coarse grid has ``round(res / k)`` samples per
             axis, at least 2).
+        betas: Adam's moment decays; the trainer passes its SDF group's.
+        eps: Adam's denominator floor; the trainer passes its SDF group's.
     """
 
-    def __init__(self, factor: int):
+    def __init__(self, factor: int, betas: tuple[float, float] = (0.9, 0.99),
+                 eps: float = 1e-15):
         if factor < 1:
             raise ValueError(f"CoarseStep: factor must be >= 1, got {factor}")
-        self.factor = factor
+        self.factor, self.betas, self.eps = factor, betas, eps
         self.m: torch.Tensor | None = None
         self.v: torch.Tensor | None = None
         self.t = 0
@@ -57,14 +56,14 @@ class CoarseStep:
         g = F.adaptive_avg_pool3d(grad[None], rc)[0]
         if self.m is None or self.m.shape != g.shape:  # first step, or a new resolution
             self.m, self.v, self.t = torch.zeros_like(g), torch.zeros_like(g), 0
-        b1, b2 = BETAS
+        b1, b2 = self.betas
         self.t += 1
         self.m.mul_(b1).add_(g, alpha=1 - b1)
         self.v.mul_(b2).addcmul_(g, g, value=1 - b2)
         mh = self.m / (1 - b1 ** self.t)
         vh = self.v / (1 - b2 ** self.t)
         reliability = (mh * mh / (vh + 1e-30)).clamp(0.0, 1.0)
-        upd = lr * reliability * mh / (vh.sqrt() + 1e-15)
+        upd = lr * reliability * mh / (vh.sqrt() + self.eps)
         up = F.interpolate(upd[None], size=(r, r, r), mode="trilinear", align_corners=True)[0]
         grid.sub_(up)
         return up

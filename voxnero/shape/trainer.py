@@ -206,10 +206,10 @@ class ShapeTrainer:
             with torch.no_grad():
                 g[0] = before[0] + gaussian_blur3d(g[0] - before[0], cfg.grid.update_smooth)
         if coarse:  # Adam leaves .grad as it was: no copy needed
-            if self.coarse_step is None:
-                self.coarse_step = CoarseStep(cfg.grid.coarse_step)
-            lr = next(x["lr"] for x in self.opt.param_groups if x.get("name") == "sdf")
-            self.coarse_step.step(g.data, g.grad, lr)
+            grp = next(x for x in self.opt.param_groups if x.get("name") == "sdf")
+            if self.coarse_step is None:  # the SDF group's own Adam constants
+                self.coarse_step = CoarseStep(cfg.grid.coarse_step, grp["betas"], grp["eps"])
+            self.coarse_step.step(g.data, g.grad, grp["lr"])
         m.env.release()
         return {"loss": float(loss.detach()), **{k: float(v.detach()) for k, v in t.items()},
                 "psnr": losses.psnr(out["rgb"], target), "s": s, "res": m.sdf.res}
