@@ -69,6 +69,54 @@ def alpha_from_sdf_sequence(sdf: torch.Tensor, z: torch.Tensor, s: float | torch
     return alpha_from_interval(sdf[:, :-1], sdf[:, 1:], s)
 
 
+def alpha_from_sequence_min(sdf: torch.Tensor, slope: torch.Tensor, z: torch.Tensor,
+                            s: float | torch.Tensor) -> torch.Tensor:
+    """Opacity of the ``S − 1`` intervals between consecutive samples, counting the SDF's dip
+    between two samples.
+
+    A ray that grazes a convex surface (a thin rod, a rounded edge at the outline) reaches its
+    smallest SDF between two samples; :func:`alpha_from_sdf_sequence` sees only the two
+    samples' values and renders such a ray too transparent (a dip 0.002 inside a sphere
+    midway between samples 0.16 apart, s = 1600: 0.13 instead of 0.96), so the outline of a
+    thin part renders thinner than the shape and the fit widens the shape. Where the slope
+    along the ray goes from negative to positive inside an interval, its minimum is taken from
+    the cubic Hermite interpolant of the two values and slopes (clamped between the 1-Lipschitz
+    bound ``(f0 + f1 − h)/2`` and the smaller value), and the interval's opacity is that of the
+    approach to it, ``alpha_from_interval(f0, min)`` (the way out adds none, as in NeuS).
+    Monotone intervals get exactly :func:`alpha_from_sdf_sequence`'s opacity.
+
+    Args:
+        sdf: ``(R, S)`` SDF at the samples.
+        slope: ``(R, S)`` the SDF's derivative along the ray, ``∇f · d`` (d unit).
+        z: ``(R, S)`` sorted sample depths (same length unit as the SDF).
+        s: sharpness.
+
+    Returns:
+        ``(R, S − 1)`` opacity in [0, 1].
+    """
+    f0, f1, g0, g1 = sdf[:, :-1], sdf[:, 1:], slope[:, :-1], slope[:, 1:]
+    h = (z[:, 1:] - z[:, :-1]).clamp(min=1e-9)
+    dip = (g0 < 0) & (g1 > 0)
+    a0, a1 = h * g0, h * g1  # the slopes per unit of u = (t − t0) / h
+    with torch.no_grad():
+        # where the Hermite cubic p(u) is smallest: p'(u) = A u^2 + B u + C has one root in
+        # (0, 1) on a dip. At a minimum p'(u) = 0, so the value's gradient needs no gradient
+        # of u (envelope theorem): the root is found without autograd, whose sqrt and
+        # divisions at near-double roots gave NaN gradients in training.
+        qa = 6 * f0 + 3 * a0 - 6 * f1 + 3 * a1
+        qb = -6 * f0 - 4 * a0 + 6 * f1 - 2 * a1
+        qc = a0
+        root = torch.sqrt((qb * qb - 4 * qa * qc).clamp(min=0.0))
+        q = -0.5 * (qb + torch.where(qb >= 0, root, -root))  # stable roots q/A and C/q
+        r1 = q / torch.where(qa.abs() > 1e-12, qa, torch.ones_like(qa))
+        r2 = qc / torch.where(q.abs() > 1e-30, q, torch.ones_like(q))
+        u = torch.where((qa.abs() > 1e-12) & (r1 > 0) & (r1 < 1), r1, r2).clamp(0.0, 1.0)
+    m = ((2 * u ** 3 - 3 * u ** 2 + 1) * f0 + (u ** 3 - 2 * u ** 2 + u) * a0
+         + (-2 * u ** 3 + 3 * u ** 2) * f1 + (u ** 3 - u ** 2) * a1)
+    m = torch.maximum(torch.minimum(m, torch.minimum(f0, f1)), 0.5 * (f0 + f1 - h))
+    return alpha_from_interval(f0, torch.where(dip, m, f1), s)
+
+
 def composite_weights(alpha: torch.Tensor) -> torch.Tensor:
     """Front-to-back compositing weights ``w_i = α_i Π_{j<i} (1 − α_j)``.
 

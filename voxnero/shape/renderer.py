@@ -30,7 +30,8 @@ from voxnero.fields.heads import MaterialHead
 from voxnero.fields.lights import EnvLight, IndirectNet, OcclusionNet
 from voxnero.render.brdf import safe_normalize
 from voxnero.shape.config import ShapeConfig
-from voxnero.shape.neus import alpha_from_samples, alpha_from_sdf_sequence, composite_weights
+from voxnero.shape.neus import (alpha_from_samples, alpha_from_sdf_sequence,
+                                alpha_from_sequence_min, composite_weights)
 from voxnero.shape.sampler import clip_rays, interval_lengths, merge_sorted, sample_pdf, stratified
 from voxnero.shape.shading import reflect, shade
 
@@ -180,7 +181,11 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
     mark("grid")
     if cfg.neus.alpha == "sequence":
         # opacity of the intervals between consecutive samples from their SDF values only
-        w = composite_weights(alpha_from_sdf_sequence(sdf, z, s))
+        if cfg.neus.dip:
+            slope = (grad3 * d[:, None]).sum(-1)
+            w = composite_weights(alpha_from_sequence_min(sdf, slope, z, s))
+        else:
+            w = composite_weights(alpha_from_sdf_sequence(sdf, z, s))
         pts = 0.5 * (pts[:, 1:] + pts[:, :-1])
         grad3 = 0.5 * (grad3[:, 1:] + grad3[:, :-1])
     else:
