@@ -30,8 +30,12 @@ from voxnero.fields.heads import MaterialHead
 from voxnero.fields.lights import EnvLight, IndirectNet, OcclusionNet
 from voxnero.render.brdf import safe_normalize
 from voxnero.shape.config import ShapeConfig
-from voxnero.shape.neus import (alpha_from_samples, alpha_from_sdf_sequence,
-                                alpha_from_sequence_min, composite_weights)
+from voxnero.shape.neus import (
+    alpha_from_samples,
+    alpha_from_sdf_sequence,
+    alpha_from_sequence_min,
+    composite_weights,
+)
 from voxnero.shape.sampler import clip_rays, interval_lengths, merge_sorted, sample_pdf, stratified
 from voxnero.shape.shading import reflect, shade
 
