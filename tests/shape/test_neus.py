@@ -162,8 +162,9 @@ def test_the_dip_opacity_has_finite_gradients_everywhere(f, g, h, s):
     assert bool(torch.isfinite(sdf.grad).all()) and bool(torch.isfinite(slope.grad).all())
 
 
-def test_the_dip_opacity_gradient_is_finite_at_a_double_root():
-    # values and slopes whose Hermite derivative has a double root: disc = 0 exactly
+def test_the_dip_opacity_gradient_is_finite_when_the_quadratic_degenerates():
+    # equal values and opposite unit slopes: the Hermite derivative's leading coefficient is 0,
+    # so the root comes from the linear fallback
     sdf = torch.tensor([[0.0, 0.0]], requires_grad=True)
     slope = torch.tensor([[-1.0, 1.0]], requires_grad=True)
     z = torch.tensor([[0.0, 1.0]])

@@ -266,8 +266,8 @@ class NeusConfig:
     thin part too thin, and the fit widens the part. Corpus (docs/STAGE1.md finding 35):
     `standard` Chamfer median 0.75 -> 0.60 px (chair 0.73 -> 0.56, frame 0.92 -> 0.76, table
     0.77 -> 0.63), `preview` 0.71 -> 0.66; not the default yet: at `standard` the gear's mesh
-    gains a handle (genus 6 for 5), at `preview` the bunny's two, and stage 2 was not measured
-    on its meshes."""
+    gains a handle (genus 6 for 5), at `preview` the bunny's two, and stage 2 was measured on
+    two of its meshes only."""
     s_final: float = 1600.0
     """Sharpness at the end of the run: from ``final_at`` of ``iters`` on, s rises
     geometrically from its scheduled value to ``s_final`` (≤ ``s_end``: no rise).

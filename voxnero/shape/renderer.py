@@ -184,7 +184,8 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
     grad3 = grad.view(*z.shape, 3)
     mark("grid")
     if cfg.neus.alpha == "sequence":
-        # opacity of the intervals between consecutive samples from their SDF values only
+        # opacity of the intervals between consecutive samples from their SDF values (and, with
+        # neus.dip, their slopes along the ray, for a dip between two samples)
         if cfg.neus.dip:
             slope = (grad3 * d[:, None]).sum(-1)
             w = composite_weights(alpha_from_sequence_min(sdf, slope, z, s))
