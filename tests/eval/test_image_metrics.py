@@ -92,6 +92,48 @@ def test_channel_scale_least_squares_and_torch():
     assert np.allclose(s.numpy(), ref, rtol=1e-5)
 
 
+def test_channel_scale_clip_ignores_highlights_the_target_cannot_show():
+    """A glint at 50× the 8-bit ceiling where the photo shows 0.5: the plain least-squares
+    scale collapses toward 0, the clip-aware one recovers the true scale exactly."""
+    rng = np.random.default_rng(7)
+    s_true = np.array([0.8, 1.1, 1.3])
+    pred = rng.uniform(0.01, 0.7, (48, 48, 3))
+    gt = pred * s_true
+    pred[:2, :3] = 50.0  # six glint pixels (0.3 % of the image) that the photo lacks
+    gt[:2, :3] = 0.5
+    plain = fit_channel_scale(pred, gt)
+    assert np.all(plain < 0.5 * s_true)
+    assert np.allclose(fit_channel_scale(pred, gt, clip=1.0), s_true, rtol=1e-12)
+
+
+def test_channel_scale_clip_without_clipped_pixels_is_least_squares():
+    rng = np.random.default_rng(8)
+    pred = rng.uniform(0.0, 0.5, (32, 32, 3))
+    gt = pred * 1.2 + rng.normal(0, 0.01, pred.shape)
+    assert np.allclose(fit_channel_scale(pred, gt, clip=1.0), fit_channel_scale(pred, gt))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), glints=st.integers(0, 40), level=st.floats(1.0, 1e4))
+def test_channel_scale_clip_is_a_local_minimum_of_the_clipped_error(seed, glints, level):
+    """The fit is a stationary point of Σ (min(s·pred, 1) − gt)² over targets below 0.99:
+    no nearby scale compares better (checked by perturbing it, independent of the iteration)."""
+    rng = np.random.default_rng(seed)
+    pred = rng.uniform(0.0, 1.2, (24, 24, 3))
+    gt = np.clip(pred * rng.uniform(0.5, 1.5, 3) + rng.normal(0, 0.05, pred.shape), 0, 1)
+    idx = rng.integers(0, 24, (glints, 2))
+    pred[idx[:, 0], idx[:, 1]] = level
+    s = fit_channel_scale(pred, gt, clip=1.0)
+    ok = gt < 0.99
+
+    def err(scale):
+        return (((np.minimum(pred * scale, 1.0) - gt) ** 2) * ok).sum((0, 1))
+
+    e0 = err(s)
+    for f in (1 - 1e-3, 1 + 1e-3):
+        assert np.all(e0 <= err(s * f) + 1e-12)
+
+
 def test_mae():
     a = np.zeros((4, 4))
     b = np.zeros((4, 4))

@@ -75,7 +75,7 @@ def _score(renders: list[np.ndarray], photos: list[np.ndarray], masks: list[np.n
     raw = psnr(enc, gt8, m)
     gt_lin = srgb_to_linear(gt8)
     unclipped = m & (gt8.amax(-1) < 0.99)
-    s = fit_channel_scale(pred, gt_lin, unclipped if bool(unclipped.any()) else m)
+    s = fit_channel_scale(pred, gt_lin, unclipped if bool(unclipped.any()) else m, clip=1.0)
     scaled = psnr(linear_to_srgb((pred * s).clamp(0, 1)), gt8, m)
     return float(raw), float(scaled)
 

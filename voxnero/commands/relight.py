@@ -159,8 +159,8 @@ def _render(args: argparse.Namespace, cfg: Any, device: Any, asset: Any, env: An
                 rec["psnr_object"] = psnr(q, gt, full)
                 # fit where neither side is clipped (a sun's reflection at L = 50 against an
                 # 8-bit 1.0 would drive the least-squares scale toward 0)
-                fit = full & (rgb.max(-1) < 1.0) & (photos[i].max(-1) < 0.99)
-                s = fit_channel_scale(rgb, photos[i], fit if fit.any() else full)
+                fit = full & (photos[i].max(-1) < 0.99)
+                s = fit_channel_scale(rgb, photos[i], fit if fit.any() else full, clip=1.0)
                 rec["psnr_object_scaled"] = psnr(
                     np.asarray(linear_to_srgb(np.clip(rgb * s, 0, 1))), gt, full)
         per_view.append(rec)

@@ -109,21 +109,46 @@ def ssim(pred, gt, mask=None, window_size: int = 11, max_val: float = 1.0) -> fl
     return float(s[m].mean())
 
 
-def fit_channel_scale(pred, gt, mask=None) -> torch.Tensor | np.ndarray:
+def fit_channel_scale(pred, gt, mask=None, clip: float | None = None
+                      ) -> torch.Tensor | np.ndarray:
     """Least-squares per-channel scale ``s_c = argmin Σ (s·pred_c − gt_c)²`` over the mask.
 
     Resolves the albedo–light (relighting) scale ambiguity: compare ``s · pred`` with ``gt``.
     Fit on linear values if the metric that follows is computed after scaling linear images.
+
+    Args:
+        pred, gt: images (linear values for a relighting comparison).
+        mask: optional selection of pixels.
+        clip: the level both images are clipped at before they are compared (8-bit photos:
+            1), or None. Then pixel-channels where the target reaches ``0.99 · clip`` or the
+            scaled prediction reaches ``clip`` are left out, refitting until that set no longer
+            changes: a stationary point of ``Σ (min(s·pred_c, clip) − gt_c)²`` over the targets
+            below the clip. A clipped pixel bounds the scale but does not measure it, and
+            without this a few HDR highlights (a sun's glint at 10-100× the clip level, or a
+            Monte Carlo firefly) dominate the sum and scale the whole image dark.
 
     Returns:
         ``(C,)`` scales (numpy if ``pred`` is numpy, else a float32 torch tensor); 1 for a
         channel whose prediction is all zero there.
     """
     p, g = _pair(pred, gt)
-    m = _mask(mask, p).to(torch.float64)
-    num = (m * p * g).sum((0, 1, 2))
-    den = (m * p * p).sum((0, 1, 2))
-    s = torch.where(den > 0, num / torch.where(den > 0, den, 1.0), torch.ones_like(den))
+    m = _mask(mask, p).expand_as(p)
+    if clip is not None:
+        m = m & (g < 0.99 * clip)
+
+    def fit(sel: torch.Tensor) -> torch.Tensor:
+        w = sel.to(torch.float64)
+        num, den = (w * p * g).sum((0, 1, 2)), (w * p * p).sum((0, 1, 2))
+        return torch.where(den > 0, num / torch.where(den > 0, den, 1.0), torch.ones_like(den))
+
+    s = fit(m)
+    if clip is not None:
+        sel = m
+        for _ in range(100):  # a few rounds in practice; the cap guards against a 2-cycle
+            nxt = m & (p * s < clip)
+            if torch.equal(nxt, sel):
+                break
+            sel, s = nxt, fit(nxt)
     return s.float() if isinstance(pred, torch.Tensor) else s.numpy()
 
 

@@ -15,8 +15,10 @@ were made:
 * novel views (``test``): PSNR / SSIM of the whole image and PSNR of fully covered pixels
   (mask = 1, evaluation-only masks);
 * relighting (``test_relight_<env>`` with ``gt/envmap_<env>.exr``): the object under the new map,
-  a per-channel scale fitted on linear values of fully covered pixels that are not clipped in the
-  8-bit target (albedo–light ambiguity), PSNR / SSIM on the fully covered pixels;
+  a per-channel scale fitted on linear values of fully covered pixels that are clipped neither in
+  the 8-bit target nor in the scaled render (albedo–light ambiguity;
+  :func:`voxnero.eval.images.fit_channel_scale` with ``clip=1``), PSNR / SSIM on the fully
+  covered pixels;
 * material maps: metallic and roughness MAE at fully covered test pixels vs
   ``gt/test_metallic``, ``gt/test_roughness``; albedo PSNR after a per-channel scale.
 """
@@ -326,10 +328,12 @@ def evaluate_scene(scene_root: str | Path, geom: Geometry, field, env_image: tor
             if not full.any():
                 continue
             gt = sp.images[i]
-            # fit the scale where the 8-bit target is not clipped (a sun's reflection is
-            # hundreds of times brighter than 1 in the render and 1 in the photo)
+            # fit the scale where neither the 8-bit target nor the scaled render is clipped (a
+            # sun's reflection is hundreds of times brighter than 1 in the render and 1 in the
+            # photo; a misplaced glint or a firefly would scale the whole view dark)
             unclipped = full & (gt.amax(-1) < 0.99)
-            sc = fit_channel_scale(r["rgb"], gt, unclipped if unclipped.any() else full)
+            sc = fit_channel_scale(r["rgb"], gt, unclipped if unclipped.any() else full,
+                                   clip=1.0)
             pred = srgb(r["rgb"] * sc)
             vals["psnr"].append(psnr(pred, srgb(gt), full))
             vals["ssim"].append(ssim(torch.where(full[..., None], pred, 0 * pred),
