@@ -120,12 +120,12 @@ def fit_channel_scale(pred, gt, mask=None, clip: float | None = None
         pred, gt: images (linear values for a relighting comparison).
         mask: optional selection of pixels.
         clip: the level both images are clipped at before they are compared (8-bit photos:
-            1), or None. Then pixel-channels where the target reaches ``0.99 · clip`` or the
-            scaled prediction reaches ``clip`` are left out, refitting until that set no longer
-            changes: a stationary point of ``Σ (min(s·pred_c, clip) − gt_c)²`` over the targets
-            below the clip. A clipped pixel bounds the scale but does not measure it, and
-            without this a few HDR highlights (a sun's glint at 10-100× the clip level, or a
-            Monte Carlo firefly) dominate the sum and scale the whole image dark.
+            1), or None. Then the scale minimises ``Σ (min(s·pred_c, clip) − gt_c)²`` over the
+            selected pixel-channels whose target is below ``0.99 · clip`` (exactly: the error
+            is quadratic in s between the scales at which successive pixels clip). A pixel the
+            scaled render clips bounds the scale but does not measure it; without this a few
+            HDR highlights (a sun's glint at 10-100× the clip level, a Monte Carlo firefly)
+            dominate the sum and scale the whole image dark.
 
     Returns:
         ``(C,)`` scales (numpy if ``pred`` is numpy, else a float32 torch tensor); 1 for a
@@ -133,23 +133,46 @@ def fit_channel_scale(pred, gt, mask=None, clip: float | None = None
     """
     p, g = _pair(pred, gt)
     m = _mask(mask, p).expand_as(p)
-    if clip is not None:
-        m = m & (g < 0.99 * clip)
-
-    def fit(sel: torch.Tensor) -> torch.Tensor:
-        w = sel.to(torch.float64)
+    if clip is None:
+        w = m.to(torch.float64)
         num, den = (w * p * g).sum((0, 1, 2)), (w * p * p).sum((0, 1, 2))
-        return torch.where(den > 0, num / torch.where(den > 0, den, 1.0), torch.ones_like(den))
-
-    s = fit(m)
-    if clip is not None:
-        sel = m
-        for _ in range(100):  # a few rounds in practice; the cap guards against a 2-cycle
-            nxt = m & (p * s < clip)
-            if torch.equal(nxt, sel):
-                break
-            sel, s = nxt, fit(nxt)
+        s = torch.where(den > 0, num / torch.where(den > 0, den, 1.0), torch.ones_like(den))
+    else:
+        m = m & (g < 0.99 * clip)
+        s = torch.stack([_clipped_scale(p[..., c][m[..., c]], g[..., c][m[..., c]], clip)
+                         for c in range(p.shape[-1])])
     return s.float() if isinstance(pred, torch.Tensor) else s.numpy()
+
+
+def _clipped_scale(p: torch.Tensor, g: torch.Tensor, clip: float) -> torch.Tensor:
+    """argmin over s ≥ 0 of ``Σ (min(s·p, clip) − g)²`` for ``(N,)`` values; 1 if all p ≤ 0.
+
+    Pixel i clips from ``t_i = clip / p_i``. Sorted by t, for s between the k-th and the
+    (k+1)-th of them the first k are clipped (a constant ``(clip − g)²`` each) and the rest are
+    quadratic in s, so each interval's minimum is its least-squares scale clamped to the
+    interval; suffix sums give all intervals at once. (Refitting on the unclipped pixels until
+    they stop changing is not enough: from the plain least-squares scale, glints at 500× leave
+    it stuck near 1/500, where they are not clipped.)
+    """
+    p = p.clamp_min(0)
+    if not bool((p > 0).any()):
+        return torch.ones((), dtype=torch.float64)
+    t = torch.where(p > 0, clip / p.clamp_min(1e-300), torch.full_like(p, math.inf))
+    order = torch.argsort(t)
+    p, g, t = p[order], g[order], t[order]
+
+    def suffix(x: torch.Tensor) -> torch.Tensor:  # (N + 1,): sum of x[k:] for k = 0..N
+        return torch.cat([torch.flip(torch.cumsum(torch.flip(x, [0]), 0), [0]), x.new_zeros(1)])
+
+    a, b, c = suffix(p * p), suffix(p * g), suffix(g * g)
+    d = torch.cat([g.new_zeros(1), torch.cumsum((clip - g) ** 2, 0)])  # the k clipped ones
+    lo = torch.cat([g.new_zeros(1), t])                                  # interval k: [lo, hi]
+    hi = torch.cat([t, torch.full_like(g[:1], math.inf)])
+    s = torch.where(a > 0, b / a.clamp_min(1e-300), lo)
+    s = torch.minimum(torch.maximum(s, lo), hi)
+    s = torch.where(torch.isfinite(s), s, lo)
+    err = a * s * s - 2 * b * s + c + d
+    return s[torch.argmin(err)]
 
 
 def mae(a, b, mask=None) -> float:
