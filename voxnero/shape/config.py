@@ -266,10 +266,10 @@ class NeusConfig:
     thin part too thin, and the fit widens the part. On in the shipped presets; off here so
     that the unit tests' tiny runs keep the plain sequence opacity. Corpus (docs/STAGE1.md
     findings 35-37): `standard` Chamfer median 0.75 -> 0.60 px (chair 0.73 -> 0.56, frame
-    0.92 -> 0.76, table 0.77 -> 0.63), `preview` 0.71 -> 0.66; stage 2 relights its
-    `standard` meshes as well as those without it once the relight scale ignores clipped
-    pixels (finding 37). The gear's genus depends on the seed with or without it (its carved
-    start loses the tops of the teeth)."""
+    0.92 -> 0.76, table 0.77 -> 0.63), `preview` 0.71 -> 0.65; stage 2 relights its
+    `standard` meshes at a median of 26.17 dB (finding 37; the pretzel's pits cost it 2 dB).
+    The gear's genus depends on the seed with or without it (its carved start loses the tops
+    of the teeth)."""
     s_final: float = 1600.0
     """Sharpness at the end of the run: from ``final_at`` of ``iters`` on, s rises
     geometrically from its scheduled value to ``s_final`` (≤ ``s_end``: no rise).
