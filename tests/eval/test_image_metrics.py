@@ -113,6 +113,21 @@ def test_channel_scale_clip_without_clipped_pixels_is_least_squares():
     assert np.allclose(fit_channel_scale(pred, gt, clip=1.0), fit_channel_scale(pred, gt))
 
 
+def test_channel_scale_clip_ignores_black_render_pixels():
+    """A render pixel of exactly 0 (a shadow) costs the same at every scale: the fit is the
+    one without it, finite."""
+    rng = np.random.default_rng(9)
+    pred = rng.uniform(0.1, 0.5, (16, 16, 3))
+    gt = pred * np.array([1.2, 0.9, 1.1])
+    black = pred.copy()
+    black[0, :4] = 0.0
+    keep = np.ones((16, 16), bool)
+    keep[0, :4] = False
+    s = fit_channel_scale(black, gt, clip=1.0)
+    assert np.all(np.isfinite(s))
+    assert np.allclose(s, fit_channel_scale(pred, gt, keep, clip=1.0), rtol=1e-12)
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 10_000), glints=st.integers(0, 40), level=st.floats(1.0, 1e4))
 def test_channel_scale_clip_minimises_the_clipped_error(seed, glints, level):

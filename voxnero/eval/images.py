@@ -145,7 +145,7 @@ def fit_channel_scale(pred, gt, mask=None, clip: float | None = None
 
 
 def _clipped_scale(p: torch.Tensor, g: torch.Tensor, clip: float) -> torch.Tensor:
-    """argmin over s ≥ 0 of ``Σ (min(s·p, clip) − g)²`` for ``(N,)`` values; 1 if all p ≤ 0.
+    """argmin over s ≥ 0 of ``Σ (min(s·p, clip) − g)²`` for ``(N,)`` values; 1 if no p > 0.
 
     Pixel i clips from ``t_i = clip / p_i``. Sorted by t, for s between the k-th and the
     (k+1)-th of them the first k are clipped (a constant ``(clip − g)²`` each) and the rest are
@@ -154,10 +154,11 @@ def _clipped_scale(p: torch.Tensor, g: torch.Tensor, clip: float) -> torch.Tenso
     they stop changing is not enough: from the plain least-squares scale, glints at 500× leave
     it stuck near 1/500, where they are not clipped.)
     """
-    p = p.clamp_min(0)
-    if not bool((p > 0).any()):
+    keep = p > 0  # a black pixel adds the same (0 − g)² at every scale
+    if not bool(keep.any()):
         return torch.ones((), dtype=torch.float64)
-    t = torch.where(p > 0, clip / p.clamp_min(1e-300), torch.full_like(p, math.inf))
+    p, g = p[keep], g[keep]
+    t = clip / p
     order = torch.argsort(t)
     p, g, t = p[order], g[order], t[order]
 
@@ -170,7 +171,6 @@ def _clipped_scale(p: torch.Tensor, g: torch.Tensor, clip: float) -> torch.Tenso
     hi = torch.cat([t, torch.full_like(g[:1], math.inf)])
     s = torch.where(a > 0, b / a.clamp_min(1e-300), lo)
     s = torch.minimum(torch.maximum(s, lo), hi)
-    s = torch.where(torch.isfinite(s), s, lo)
     err = a * s * s - 2 * b * s + c + d
     return s[torch.argmin(err)]
 
