@@ -188,6 +188,8 @@ def render_rays(model: ShapeModel, origins: torch.Tensor, dirs: torch.Tensor, s:
         # neus.dip, their slopes along the ray, for a dip between two samples)
         if cfg.neus.dip:
             slope = (grad3 * d[:, None]).sum(-1)
+            if cfg.neus.dip_detach:
+                slope = slope.detach()
             w = composite_weights(alpha_from_sequence_min(sdf, slope, z, s))
         else:
             w = composite_weights(alpha_from_sdf_sequence(sdf, z, s))
