@@ -117,7 +117,8 @@ class CoarseConfig:
         "sdf_upsample_at": Range(0.0, 1.0, lo_open=True, hi_open=True),
         "smooth": Range(0.0, 16.0), "close": at_least(0, 16),
         "update_smooth": Range(0.0, 16.0), "lr_sdf_factor": positive(1e3),
-        "threshold": Range(0.0, 1.0, lo_open=True, hi_open=True)}
+        "threshold": Range(0.0, 1.0, lo_open=True, hi_open=True),
+        "bg_grow": at_least(0, 64), "bg_quantile": Range(0.0, 1.0)}
 
     iters: int = 0
     """Steps of the coarse stage; 0 = off (the SDF starts from the sphere ``grid.init_radius``
@@ -147,6 +148,14 @@ class CoarseConfig:
     near_iters: int = 0
     """Steps of stage 1 (instead of ``iters``) when the background is near; such a scene never
     races sphere starts (:func:`voxnero.shape.starts.near_start`). 0 = ``iters``."""
+    bg_grow: int = 0
+    """Voxels of the density grid by which the hull may grow into corners the photos show as
+    object: seen against a background pixel in fewer of their views than the hull's own core
+    (:func:`voxnero.shape.hull.grow_seen_as_object`, :mod:`voxnero.shape.bg_votes`). A
+    mirror's density can sit below its shiny face, and its hull then lacks that face (the
+    gear's tooth tops, docs/STAGE1.md finding 38). 0 = off."""
+    bg_quantile: float = 0.95
+    """Quantile of the hull core's background ratio that a grown corner must stay below."""
     race: bool = True
     """Race the coarse start against the sphere of ``grid.init_radius`` (complete runs, the
     better final fit kept, :func:`voxnero.shape.starts.race`): a mirror's density can be a

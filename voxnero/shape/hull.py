@@ -10,10 +10,16 @@ keeps whatever density it started with. So the start of the SDF is taken topolog
 3. the signed distance to that solid by two Euclidean distance transforms, the surface half a
    voxel between an inside and an outside corner.
 
+With ``coarse.bg_grow`` the filled solid first grows, by a few voxels at most, into the corners
+the photos show as object rather than background (:func:`grow_seen_as_object`), where a
+mirror's density sat below its face.
+
 Grids are ``(D, H, W)`` indexed ``[z, y, x]`` (the convention of :mod:`voxnero.fields.grid`).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 from scipy import ndimage
@@ -75,3 +81,49 @@ def fitted_box(inside: np.ndarray, bounds: np.ndarray, margin: float, limit: flo
     half = min(half, limit)
     centre = np.clip(centre, -limit + half, limit - half)
     return np.stack([centre - half, centre + half])
+
+
+def grow_seen_as_object(inside: np.ndarray, ratio_of: Callable[[np.ndarray], np.ndarray],
+                        grow: int, quantile: float = 0.95, core_erode: int = 2,
+                        core_samples: int = 20000, seed: int = 0
+                        ) -> tuple[np.ndarray, dict]:
+    """Grow a voxel solid into the corners next to it that the photos show as object.
+
+    A mirror's density can sit below its shiny face (the reflections drawn as a virtual image
+    under it), so the density's solid misses a face that every photo shows as object against
+    the background (the gear's tooth tops, docs/STAGE1.md finding 38). ``ratio_of`` gives, for
+    grid corners, the fraction of the views seeing them whose pixel the background explains:
+    near 0 for a corner inside the object's outline in every view, large for free space. The
+    classification of pixels errs on the object (a reflection can match the background), so
+    the threshold is the ``quantile`` of the ratio over the solid's core (eroded by
+    ``core_erode``; at most ``core_samples`` corners), and the corners within ``grow``
+    6-neighbour steps outside the solid whose ratio is at most that are added; the result is
+    re-filled by :func:`solid`'s rules. The solid only grows, by ``grow`` voxels at most.
+
+    Args:
+        inside: ``(D, H, W)`` bool solid.
+        ratio_of: maps a ``(D, H, W)`` bool selection to the ratios of its corners, ``(K,)``
+            in the order of ``np.argwhere`` (C order).
+        grow: most voxels the solid grows; 0 returns it unchanged.
+
+    Returns:
+        The grown solid and its evidence: the threshold, the corners tried and added.
+    """
+    if grow <= 0 or not inside.any():
+        return inside, {"added": 0}
+    core = ndimage.binary_erosion(inside, iterations=core_erode)
+    if not core.any():
+        core = inside
+    idx = np.flatnonzero(core)
+    if idx.size > core_samples:
+        idx = np.random.default_rng(seed).choice(idx, core_samples, replace=False)
+    pick = np.zeros(inside.size, bool)
+    pick[idx] = True
+    thr = float(np.quantile(ratio_of(pick.reshape(inside.shape)), quantile))
+    st = ndimage.generate_binary_structure(3, 1)
+    shell = ndimage.binary_dilation(inside, st, iterations=grow) & ~inside
+    add = np.zeros_like(inside)
+    add[shell] = ratio_of(shell) <= thr
+    grown = solid((inside | add).astype(np.float32), 0.5)
+    return grown, {"threshold": round(thr, 4), "shell": int(shell.sum()),
+                   "added": int(add.sum()), "grown": int(grown.sum() - inside.sum())}

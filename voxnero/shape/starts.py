@@ -26,6 +26,10 @@ from voxnero.shape.config import ShapeConfig
 from voxnero.shape.renderer import as_photographed, background, render_rays
 
 if TYPE_CHECKING:
+    import numpy as np
+
+    from voxnero.shape.coarse import Background, CoarseModel
+    from voxnero.shape.config import CoarseConfig
     from voxnero.shape.trainer import ShapeTrainer
 
 FIT_SEED_OFFSET = 104729
@@ -161,6 +165,9 @@ def coarse_start(tr: ShapeTrainer) -> None:
         from scipy import ndimage
         alpha = ndimage.gaussian_filter(alpha, c.smooth)
     inside = hull.solid(alpha, c.threshold, close=c.close)
+    grown = {"added": 0}
+    if c.bg_grow > 0 and inside.any():
+        inside, grown = _grow_by_background(tr, model, bg, inside, c)
     sdf = hull.signed_distance(inside, model.density_grid.voxel)
     g = tr.model.sdf
     box = None
@@ -187,6 +194,10 @@ def coarse_start(tr: ShapeTrainer) -> None:
         reason = ("coarse free-space stage found no occupied voxel at opacity > "
                   f"{c.threshold:g}: the SDF keeps its sphere start (r={tr.cfg.grid.init_radius:g};"
                   " too few coarse.iters, or check the photos and poses)")
+    if grown.get("grown"):
+        reason += (f"; grown by {grown['grown']} voxels the photos show as object "
+                   f"(background ratio ≤ {grown['threshold']:g}, the hull core's "
+                   f"{c.bg_quantile:g} quantile, within {c.bg_grow} voxels)")
     if box is not None:
         reason += (f"; SDF grid fitted to the object's box (side {box[1, 0] - box[0, 0]:.3f}, "
                    f"{g.res}^3, voxel {g.voxel:.4f})")
@@ -196,7 +207,28 @@ def coarse_start(tr: ShapeTrainer) -> None:
                  "final_loss": round(tail, 5), "seconds": round(seconds, 2),
                  "max_alpha": round(float(alpha.max()), 4),
                  "sdf_box": None if box is None else box.round(4).tolist(),
-                 "sdf_voxel": round(g.voxel, 6), "env_height": env.height}, 0))
+                 "sdf_voxel": round(g.voxel, 6), "env_height": env.height,
+                 "bg_grow": grown}, 0))
+
+
+def _grow_by_background(tr: ShapeTrainer, model: CoarseModel, bg: Background,
+                        inside: np.ndarray, c: CoarseConfig) -> tuple[np.ndarray, dict]:
+    """``coarse.bg_grow``: the hull grown into the corners the photos show as object
+    (:func:`voxnero.shape.hull.grow_seen_as_object` with :mod:`voxnero.shape.bg_votes`)."""
+    import numpy as np
+
+    from voxnero.fields.grid import grid_points
+    from voxnero.shape import bg_votes, hull
+
+    masks = bg_votes.background_pixels(tr.cams, tr.images.view(tr.n_img, tr.h, tr.w, 3), bg)
+    corners = grid_points(model.density_grid.res, model.density_grid.bounds).reshape(-1, 3)
+
+    def ratio_of(sel: np.ndarray) -> np.ndarray:
+        pts = corners[torch.from_numpy(np.flatnonzero(sel)).to(corners.device)]
+        return bg_votes.background_ratio(tr.cams, masks, pts).cpu().numpy()
+
+    return hull.grow_seen_as_object(inside, ratio_of, c.bg_grow, c.bg_quantile,
+                                    seed=tr.cfg.seed)
 
 
 def with_coarse_schedule(cfg: ShapeConfig) -> ShapeConfig:
