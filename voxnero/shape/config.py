@@ -153,7 +153,8 @@ class CoarseConfig:
     object: seen against a background pixel in fewer of their views than the hull's own core
     (:func:`voxnero.shape.hull.grow_seen_as_object`, :mod:`voxnero.shape.bg_votes`). A
     mirror's density can sit below its shiny face, and its hull then lacks that face (the
-    gear's tooth tops, docs/STAGE1.md finding 38). 0 = off."""
+    gear's tooth tops, docs/STAGE1.md finding 38). Not with a near background (a capture's
+    table: the coarse stage's map does not draw it). 0 = off."""
     bg_quantile: float = 0.95
     """Quantile of the hull core's background ratio that a grown corner must stay below."""
     race: bool = True

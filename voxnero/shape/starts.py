@@ -167,7 +167,12 @@ def coarse_start(tr: ShapeTrainer) -> None:
     inside = hull.solid(alpha, c.threshold, close=c.close)
     grown = {"added": 0}
     if c.bg_grow > 0 and inside.any():
-        inside, grown = _grow_by_background(tr, model, bg, inside, c)
+        if m.sw.background == "near":
+            # the coarse stage draws no near field: its background explains no pixel of a
+            # capture's table, so every corner would look like object
+            grown = {"added": 0, "skipped": "near background: the map does not draw it"}
+        else:
+            inside, grown = _grow_by_background(tr, model, bg, inside, c)
     sdf = hull.signed_distance(inside, model.density_grid.voxel)
     g = tr.model.sdf
     box = None
