@@ -18,7 +18,7 @@ from collections.abc import Callable
 import torch
 
 from voxnero.cameras.cameras import Cameras
-from voxnero.cameras.rays import pixel_centers, pixel_rays
+from voxnero.cameras.rays import image_rays
 
 TOL_ABS = 0.03
 """Largest linear difference (any channel) of a background pixel from the drawn background,
@@ -42,12 +42,10 @@ def background_pixels(cams: Cameras, photos: torch.Tensor,
             ``tol_abs + tol_rel · max(background)`` of the background.
     """
     v, h, w = photos.shape[:3]
-    pix = pixel_centers(h, w, device=photos.device).reshape(-1, 2)
     out = torch.empty(v, h * w, dtype=torch.bool, device=photos.device)
     for c in range(v):
-        o, d = pixel_rays(cams, torch.full((pix.shape[0],), c, dtype=torch.long,
-                                           device=photos.device), pix)
-        bg = background(o, d)
+        o, d = image_rays(cams, c)
+        bg = background(o.reshape(-1, 3), d.reshape(-1, 3))
         err = (photos[c].reshape(-1, 3) - bg).abs().amax(-1)
         out[c] = err < tol_abs + tol_rel * bg.amax(-1)
     return out.view(v, h, w)
