@@ -63,9 +63,11 @@ class GridConfig:
     init_margin: float = 0.0
     """dB by which another start's fit must beat the first start's (the coarse stage's start
     when ``coarse.iters`` > 0, else ``init_radius``'s) to replace it. 0: the final fits the race
-    compares are deterministic and starts that end alike fit alike. The presets ask 0.5 dB of a
-    sphere against the carved start: on dtu_scan97 the sphere won by 0.4 dB with a rounder
-    surface (docs/STAGE1.md, finding 20)."""
+    compares are deterministic and starts that end alike fit alike. `preview` asks 0.5 dB of a
+    sphere against the carved start (set for dtu_scan97, where the sphere won by 0.4 dB with a
+    rounder surface, docs/STAGE1.md finding 20; a near background no longer races, finding 21);
+    `standard` and `quality` take the better fit (finding 39: sphere_gold's grown carved start
+    fitted 0.31 dB worse than the sphere at 0.0058 against 0.0038)."""
     normals: Literal["analytic", "fd"] = "analytic"
     fd_step: float = 1.0
     """Central-difference half-step in voxels (normals: fd)."""
@@ -154,10 +156,11 @@ class CoarseConfig:
     (:func:`voxnero.shape.hull.grow_seen_as_object`, :mod:`voxnero.shape.bg_votes`). A
     mirror's density can sit below its shiny face, and its hull then lacks that face (the
     gear's tooth tops, docs/STAGE1.md finding 38). Not with a near background (a capture's
-    table: the coarse stage's map does not draw it). 0 = off (every preset). Corpus `standard`
-    with 4: median 0.595 -> 0.584 px, worst 2.61 -> 2.35, the gear's genus right at three
-    seeds, the pretzel's pits gone; but sphere_gold 0.0038 -> 0.0058 (its race then keeps the
-    grown carved start), and at `preview` the gear 0.88 -> 1.19 px."""
+    table: the coarse stage's map does not draw it). 0 = off (`preview`: the gear 0.88 -> 1.19
+    px with 4); `standard` and `quality` 4: corpus median 0.595 -> 0.584 px, worst 2.61 ->
+    2.35, the gear's genus right at three seeds, the pretzel's pits gone (with
+    ``grid.init_margin`` 0, so that sphere_gold's race keeps its better sphere start,
+    finding 39)."""
     bg_quantile: float = 0.95
     """Quantile of the hull core's background ratio that a grown corner must stay below."""
     race: bool = True
