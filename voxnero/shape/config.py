@@ -63,11 +63,11 @@ class GridConfig:
     init_margin: float = 0.0
     """dB by which another start's fit must beat the first start's (the coarse stage's start
     when ``coarse.iters`` > 0, else ``init_radius``'s) to replace it. 0: the final fits the race
-    compares are deterministic and starts that end alike fit alike. `preview` asks 0.5 dB of a
-    sphere against the carved start (set for dtu_scan97, where the sphere won by 0.4 dB with a
-    rounder surface, docs/STAGE1.md finding 20; a near background no longer races, finding 21);
-    `standard` and `quality` take the better fit (finding 39: sphere_gold's grown carved start
-    fitted 0.31 dB worse than the sphere at 0.0058 against 0.0038)."""
+    compares are deterministic and starts that end alike fit alike. Every preset takes the
+    better fit. Until session 38 they asked 0.5 dB of a sphere against the carved start, set for
+    dtu_scan97 (the sphere won by 0.4 dB with a rounder surface, docs/STAGE1.md finding 20),
+    which no longer races (a near background, finding 21); with the grown hull that margin
+    kept sphere_gold's carved start, 0.31 dB worse, at 0.0058 against 0.0038 (finding 39)."""
     normals: Literal["analytic", "fd"] = "analytic"
     fd_step: float = 1.0
     """Central-difference half-step in voxels (normals: fd)."""
