@@ -593,3 +593,22 @@ def test_coarse_step_acts_in_the_finishing_phase_only(scene, tmp_path):
         torch.testing.assert_close(grids[4][i], grids[0][i], rtol=0, atol=1e-6)
     diff = (grids[4][2] - grids[0][2]).abs()
     torch.testing.assert_close(diff.max(), torch.tensor(rates[4]), rtol=1e-3, atol=0)
+
+
+def test_coarse_start_grows_its_hull_only_against_a_drawn_background(scene, tmp_path):
+    """``coarse.bg_grow`` grows the hull with a distant background (the same coarse stage's
+    hull gains exactly the corners its evidence counts) and skips it with a near one, whose
+    field the coarse map does not draw."""
+    seen = {}
+    for bg in ("distant", "near"):
+        torch.manual_seed(0)
+        cfg = _coarse_cfg(250)
+        cfg.coarse.bg_grow = 2
+        cfg.light.background = bg
+        tr = ShapeTrainer(cfg, scene, tmp_path / bg, progress=False, log=lambda s: None)
+        starts.coarse_start(tr)
+        seen[bg] = tr.decisions[-1].evidence
+    far, near = seen["distant"], seen["near"]
+    assert near["bg_grow"] == {"added": 0, "skipped": "near background: the map does not draw it"}
+    assert far["bg_grow"]["grown"] > 0
+    assert far["inside_voxels"] == near["inside_voxels"] + far["bg_grow"]["grown"]
