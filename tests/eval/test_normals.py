@@ -84,3 +84,26 @@ def test_shape_mismatch_rejected(geo, views):
     cams, normals, masks = views
     with pytest.raises(ValueError, match=r"\(V, H, W, 3\)"):
         normal_error_at_views(geo.icosphere(C, R, 2), cams, normals[:, ..., :2], masks)
+
+
+def test_gt_edge_distance_two_faces_and_outline():
+    """Two faces meeting at 90° between columns 9 and 10 of a 20×30 map, covered in columns
+    0-24: the distance is 0 on both sides of the crease and on both sides of the outline
+    (columns 24 and 25 on), and grows by one pixel per column away from them; a 10° crease is
+    not an edge at 20°."""
+    from voxnero.eval.normals import gt_edge_distance
+
+    h, w = 20, 30
+    gt = np.zeros((h, w, 3))
+    gt[:, :10] = (1.0, 0.0, 0.0)
+    gt[:, 10:] = (0.0, 0.0, 1.0)
+    valid = np.zeros((h, w), bool)
+    valid[:, :25] = True
+    d = gt_edge_distance(gt, valid)
+    assert d[5, 9] == 0 and d[5, 10] == 0 and d[5, 24] == 0 and (d[:, 25:] == 0).all()
+    np.testing.assert_allclose(d[5, :9], 9 - np.arange(9))
+    np.testing.assert_allclose(d[5, 11:25], [min(c - 10, 24 - c) for c in range(11, 25)])
+    soft = gt.copy()
+    soft[:, 10:] = (np.cos(np.radians(10)), np.sin(np.radians(10)), 0.0)
+    d2 = gt_edge_distance(soft, np.ones((h, w), bool))
+    assert np.isinf(d2).all()

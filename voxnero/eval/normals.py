@@ -135,3 +135,35 @@ def normal_error_at_views(mesh: o3d.geometry.TriangleMesh, cameras: Cameras,
             "median_deg": float(np.median(a)) if len(a) else nan,
             "n_pixels": int(len(a)),
             "hit_fraction": len(a) / eligible if eligible else nan}
+
+
+def gt_edge_distance(gt: np.ndarray, valid: np.ndarray, edge_deg: float = 20.0) -> np.ndarray:
+    """Distance in pixels from each pixel of one view to the nearest edge of its GT normal map.
+
+    An edge pixel is one whose GT normal differs by more than ``edge_deg`` from its right or
+    lower neighbour's (both pixels of such a pair count), or one outside ``valid``; so the
+    outline is an edge on both its sides (the last valid pixel and the first one outside). The
+    image border is no edge. Used to split the normal error into the band along the
+    object's edges, where a grid's rounding of a corner by a voxel shows, and the faces.
+
+    Args:
+        gt: ``(H, W, 3)`` GT normals (any length > 0 where valid).
+        valid: ``(H, W)`` bool, the pixels that carry a GT normal.
+        edge_deg: angle between neighbours that makes an edge, degrees.
+
+    Returns:
+        ``(H, W)`` float64 Euclidean distance in pixels to the nearest edge pixel (0 on one).
+    """
+    from scipy import ndimage
+
+    g = np.where(valid[..., None], gt, 0.0) + np.where(valid[..., None], 0.0, 1.0)
+    edge = ~valid.astype(bool)
+    across = angle_deg(g[:, :-1], g[:, 1:]) > edge_deg
+    edge[:, :-1] |= across
+    edge[:, 1:] |= across
+    down = angle_deg(g[:-1], g[1:]) > edge_deg
+    edge[:-1] |= down
+    edge[1:] |= down
+    if not edge.any():
+        return np.full(edge.shape, np.inf)
+    return ndimage.distance_transform_edt(~edge)
