@@ -36,22 +36,21 @@ def filtered_normals(caster, cameras, index: int, k: int) -> tuple[np.ndarray, n
     import torch
 
     from voxnero.cameras.rays import pixel_centers, pixel_rays
+    from voxnero.eval.normals import render_normals
 
     h, w = cameras.height, cameras.width
     centre = pixel_centers(h, w).reshape(-1, 2)
-    acc = np.zeros((h * w, 3))
+    acc = np.zeros((h, w, 3))
     for i in range(k):
         for j in range(k):
             off = torch.tensor([(j + 0.5) / k - 0.5, (i + 0.5) / k - 0.5])
             o, d = pixel_rays(cameras, torch.full((h * w,), index), centre + off)
-            res = caster.cast(o.cpu().numpy().astype(np.float64),
-                              d.cpu().numpy().astype(np.float64))
-            hit = np.isfinite(res["t"])
-            acc[hit] += caster.vertex_normal_at(res["tri"][hit], res["uv"][hit])
-    norm = np.linalg.norm(acc, axis=1, keepdims=True)
-    hit = norm[:, 0] > 1e-12
-    n = np.where(hit[:, None], acc / np.maximum(norm, 1e-30), 0.0)
-    return n.reshape(h, w, 3), hit.reshape(h, w)
+            rays = (o.cpu().numpy().astype(np.float64).reshape(h, w, 3),
+                    d.cpu().numpy().astype(np.float64).reshape(h, w, 3))
+            acc += render_normals(caster, cameras, index, "vertex", rays=rays)[0]  # 0 on a miss
+    norm = np.linalg.norm(acc, axis=-1, keepdims=True)
+    hit = norm[..., 0] > 1e-12
+    return np.where(hit[..., None], acc / np.maximum(norm, 1e-30), 0.0), hit
 
 
 def band_table(mesh_path: Path, scene_path: Path, edge_deg: float = 20.0,
@@ -65,7 +64,13 @@ def band_table(mesh_path: Path, scene_path: Path, edge_deg: float = 20.0,
         ``part_of_mean_deg``), then one for all scored pixels (``lo`` 0, ``hi`` inf).
     """
     from voxnero.data.detect import load_scene
-    from voxnero.eval.normals import angle_deg, gt_edge_distance, load_gt_normals, render_normals
+    from voxnero.eval.normals import (
+        angle_deg,
+        gt_edge_distance,
+        load_gt_normals,
+        render_normals,
+        scored_pixels,
+    )
     from voxnero.eval.views import MeshCaster, full_coverage, iter_view_rays
     from voxnero.mesh.io import load_mesh
 
@@ -84,7 +89,7 @@ def band_table(mesh_path: Path, scene_path: Path, edge_deg: float = 20.0,
             pred, hit = render_normals(caster, sp.cameras, v, "vertex", rays=(o, d))
         else:
             pred, hit = filtered_normals(caster, sp.cameras, v, k)
-        ok = full[v] & (np.linalg.norm(gt[v], axis=-1) > 0.5)
+        ok = scored_pixels(gt[v], full[v])
         dist = gt_edge_distance(gt[v], ok, edge_deg)
         m = ok & hit
         angles.append(angle_deg(pred[m], gt[v][m]))

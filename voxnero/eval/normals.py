@@ -93,6 +93,13 @@ def render_normals(caster: MeshCaster, cameras: Cameras, index: int,
     return n, hit
 
 
+def scored_pixels(gt: np.ndarray, full: np.ndarray) -> np.ndarray:
+    """The pixels of one view whose normal error counts: fully covered in the GT mask and with a
+    GT normal. ``gt (H, W, 3)``, ``full (H, W)`` bool (:func:`voxnero.eval.views.full_coverage`);
+    returns ``(H, W)`` bool (the mesh must still be hit there)."""
+    return full & (np.linalg.norm(gt, axis=-1) > 0.5)
+
+
 def normal_error_at_views(mesh: o3d.geometry.TriangleMesh, cameras: Cameras,
                           gt_normals: torch.Tensor | np.ndarray,
                           masks: torch.Tensor | np.ndarray,
@@ -125,7 +132,7 @@ def normal_error_at_views(mesh: o3d.geometry.TriangleMesh, cameras: Cameras,
     angles, eligible = [], 0
     for v, o, d, _ in (rays if rays is not None else iter_view_rays(cameras)):
         pred, hit = render_normals(caster, cameras, v, source, rays=(o, d))
-        ok = full[v] & (np.linalg.norm(gt[v], axis=-1) > 0.5)
+        ok = scored_pixels(gt[v], full[v])
         eligible += int(ok.sum())
         ok &= hit
         angles.append(angle_deg(pred[ok], gt[v][ok]))
@@ -156,8 +163,8 @@ def gt_edge_distance(gt: np.ndarray, valid: np.ndarray, edge_deg: float = 20.0) 
     """
     from scipy import ndimage
 
-    g = np.where(valid[..., None], gt, 0.0) + np.where(valid[..., None], 0.0, 1.0)
-    edge = ~valid.astype(bool)
+    g = np.where(valid[..., None], gt, 1.0)  # any non-zero direction outside: no NaN angles
+    edge = ~valid
     across = angle_deg(g[:, :-1], g[:, 1:]) > edge_deg
     edge[:, :-1] |= across
     edge[:, 1:] |= across
