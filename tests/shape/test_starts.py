@@ -44,3 +44,15 @@ def test_nothing_to_decide_without_a_coarse_stage_or_when_nothing_changes():
     for cfg in (_cfg(coarse_iters=0), _cfg(near_iters=0, race=False, candidates=[])):
         dec = []
         assert near_start(cfg, "near", dec) is cfg and dec == []
+
+
+def test_the_opened_start_alone_is_a_race_and_a_near_background_drops_it():
+    """``coarse.open_worst`` races even with ``coarse.race`` off (the carved start against its
+    opened shell); a near background runs the carved start alone, without it."""
+    cfg = _cfg(race=False)
+    cfg = replace(cfg, coarse=replace(cfg.coarse, open_worst=True))
+    assert has_race(cfg)
+    dec = []
+    out = near_start(cfg, "near", dec)
+    assert not has_race(out) and not out.coarse.open_worst and len(dec) == 1
+    assert dec[0].setting["coarse.open_worst"] is True

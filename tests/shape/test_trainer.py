@@ -407,6 +407,35 @@ def test_coarse_start_races_the_sphere_and_keeps_the_better_fit(scene, tmp_path)
     assert sdf_group["base_lr"] == pytest.approx(expect, rel=1e-3)
 
 
+def test_coarse_start_proposes_its_opened_shell_and_keeps_the_better_fit(scene, tmp_path,
+                                                                         monkeypatch):
+    """``coarse.open_worst``: the carved start's finished run gives its worst-fitted surface
+    patch; the start hollowed and opened there runs complete in ``starts/coarse_open`` with
+    the decision "open", and the race keeps it only if it fits ``coarse.open_margin`` better."""
+    from voxnero.shape import proposals
+
+    monkeypatch.setattr(proposals, "MIN_PIXELS", 3)  # 64² photos: few pixels per surface cube
+    cfg = _coarse_cfg(250, iters=20)  # a hull at the sphere's radius
+    cfg.coarse.open_worst, cfg.coarse.open_k = True, 1.0  # k = 1: a patch always exists
+    cfg.coarse.open_shell = 0.5  # the sphere is ~4 coarse voxels in radius: thinner walls
+    cfg.coarse.sdf_first = 1.0
+    assert starts.has_race(cfg)
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
+    tr.run()
+    dec = json.loads((tmp_path / "decisions.json").read_text())["start"]
+    assert dec["setting"] == ["coarse", "coarse_open"]
+    ev = dec["evidence"]["open"]
+    assert 0 < ev["patch_cubes"] < ev["surface_cubes"] and ev["seconds"] > 0
+    fits = dict(zip(dec["setting"], dec["evidence"]["psnr"], strict=True))
+    opened = fits["coarse_open"] > fits["coarse"] + cfg.coarse.open_margin
+    assert dec["value"] == ("coarse_open" if opened else "coarse")
+    child = json.loads((tmp_path / "starts" / "coarse_open" / "decisions.json").read_text())
+    opened = child["open"]["evidence"]
+    assert opened["patch_points"] == ev["patch_cubes"]
+    assert 0 < opened["inside_after"] < opened["inside_before"]  # hollowed, not emptied
+    assert (tmp_path / "mesh.ply").is_file()
+
+
 def test_coarse_stage_fits_a_finer_env_map_and_hands_on_its_area_average(scene, tmp_path,
                                                                          monkeypatch):
     """With ``coarse.env_height`` above ``light.env_height`` the coarse stage fits its own finer

@@ -120,7 +120,9 @@ class CoarseConfig:
         "smooth": Range(0.0, 16.0), "close": at_least(0, 16),
         "update_smooth": Range(0.0, 16.0), "lr_sdf_factor": positive(1e3),
         "threshold": Range(0.0, 1.0, lo_open=True, hi_open=True),
-        "bg_grow": at_least(0, 64), "bg_quantile": Range(0.0, 1.0)}
+        "bg_grow": at_least(0, 64), "bg_quantile": Range(0.0, 1.0),
+        "open_k": Range(1.0, 100.0), "open_shell": positive(64.0),
+        "open_margin": Range(0.0, 10.0)}
 
     iters: int = 0
     """Steps of the coarse stage; 0 = off (the SDF starts from the sphere ``grid.init_radius``
@@ -163,6 +165,27 @@ class CoarseConfig:
     finding 39)."""
     bg_quantile: float = 0.95
     """Quantile of the hull core's background ratio that a grown corner must stay below."""
+    open_worst: bool = False
+    """Propose one more start to the race (:func:`voxnero.shape.starts.race`,
+    :mod:`voxnero.shape.proposals`): after the carved start's complete run, the surface patch
+    whose photos it explains worst (error above ``open_k`` times the surface's median) may be
+    the lid the hull puts over a cavity (a mug's, a bowl's: the photos see into it but never
+    through it, so the density fills it); the carved start is made a shell 2·``open_shell``
+    coarse voxels thick, opened under that patch, and runs complete too. The race keeps it if
+    it fits ``open_margin`` dB better. Off in every preset for now: at `standard` on the corpus
+    it is kept on the mug alone, which it opens (1.96 -> 1.08 px, normal error 12.2 -> 5.3 deg)
+    with one hole too many (genus 2 for 1); the bowl's opened start fits worse and the other
+    eight scenes' too, or tie (docs/STAGE1.md finding 44). `preview`'s fits do not tell an open
+    cavity from the lid (finding 28)."""
+    open_k: float = 1.5
+    """Error above this many times the surface's median marks the worst patch."""
+    open_shell: float = 2.0
+    """Half the wall thickness of the opened start, in coarse voxels (the hollow start of
+    finding 42)."""
+    open_margin: float = 0.1
+    """dB by which the opened start must fit better than the carved one to be kept: a
+    solid object's opened start can tie (table_oak +0.008 dB, 0.63 -> 0.95 px) where an open
+    cavity wins clearly (mug_glaze +0.28 dB, 1.92 -> 1.08 px; docs/STAGE1.md finding 44)."""
     race: bool = True
     """Race the coarse start against the sphere of ``grid.init_radius`` (complete runs, the
     better final fit kept, :func:`voxnero.shape.starts.race`): a mirror's density can be a

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -39,8 +40,9 @@ independent of the training draws)."""
 
 def has_race(cfg: ShapeConfig) -> bool:
     """Whether ``cfg`` asks for more than one start: the coarse stage's start races the
-    sphere of ``grid.init_radius`` unless ``coarse.race`` is off."""
-    coarse = cfg.coarse.iters > 0 and cfg.coarse.race
+    sphere of ``grid.init_radius`` unless ``coarse.race`` is off, and its opened shell with
+    ``coarse.open_worst``."""
+    coarse = cfg.coarse.iters > 0 and (cfg.coarse.race or cfg.coarse.open_worst)
     return bool(coarse or cfg.grid.init_candidates or cfg.light.init_roughness_candidates)
 
 
@@ -71,16 +73,16 @@ def near_start(cfg: ShapeConfig, background: str, decisions: list[adaptive.Decis
     if background != "near" or c.iters <= 0:
         return cfg
     iters = c.near_iters or cfg.iters
-    spheres = c.race or bool(cfg.grid.init_candidates)
+    spheres = c.race or bool(cfg.grid.init_candidates) or c.open_worst
     if not spheres and iters == cfg.iters:
         return cfg
     decisions.append(adaptive.Decision(
         "start", "coarse", {"coarse.race": c.race, "grid.init_candidates": cfg.grid.init_candidates,
-                            "coarse.near_iters": c.near_iters},
+                            "coarse.open_worst": c.open_worst, "coarse.near_iters": c.near_iters},
         f"near background: the coarse start alone (a sphere start assumes the object alone in "
-        f"free space), {iters} steps (preset {cfg.iters})",
+        f"free space; no opened start), {iters} steps (preset {cfg.iters})",
         {"race_skipped": spheres, "iters": iters, "preset_iters": cfg.iters}))
-    return replace(cfg, iters=iters, coarse=replace(c, race=False),
+    return replace(cfg, iters=iters, coarse=replace(c, race=False, open_worst=False),
                    grid=replace(cfg.grid, init_candidates=[]))
 
 
@@ -335,9 +337,11 @@ def race(tr: ShapeTrainer) -> Path:
     measured: list[adaptive.Decision] = []  # the coarse start's "auto" exposure decision
     seconds, steps = 0.0, 0
 
-    def start(radius: float | None, rough: float | None, k: int, n: int) -> float:
+    def start(radius: float | None, rough: float | None, k: int, n: int,
+              edit: Callable[[ShapeTrainer], None] | None = None) -> float:
         nonlocal seconds, steps
         name = "coarse" if radius is None else f"r{radius:g}"
+        name = name if edit is None else f"{name}_open"
         name = name if rough is None else f"{name}_rough{rough:g}"
         light = lc if rough is None else replace(lc, init_roughness=rough)
         sub = replace(tr.cfg_in, grid=replace(g, init_candidates=[]),
@@ -345,7 +349,7 @@ def race(tr: ShapeTrainer) -> Path:
         if radius is None:
             # the child's trainer applies the coarse schedule itself (once: its learning-rate
             # factor multiplies)
-            sub = replace(sub, coarse=replace(co, race=False))
+            sub = replace(sub, coarse=replace(co, race=False, open_worst=False))
         else:
             sub = replace(sub, grid=replace(sub.grid, init_radius=radius),
                           coarse=replace(co, iters=0))
@@ -359,6 +363,7 @@ def race(tr: ShapeTrainer) -> Path:
         folder = tr.out / "starts" / name
         tr.log(f"[shape] start {name} ({k} of {n}): a complete run in {folder}")
         child = type(tr)(sub, tr.scene, folder, tr.device, tr.progress, tr.log)
+        child.start_edit = edit
         if taken is not None:
             child.decisions = [x for x in child.decisions if x.name != "exposure"] + [
                 adaptive.Decision("exposure", taken.value, lc.exposure,
@@ -379,42 +384,68 @@ def race(tr: ShapeTrainer) -> Path:
             if i != best:
                 runs[i] = (nm, ft, None)
 
-    n = len(radii) + len(roughs)
+    opening = co.iters > 0 and co.open_worst
+    n = len(radii) + len(roughs) + int(opening)
     best_k = 0
-    for k, radius in enumerate(radii):
-        fit = start(radius, None, k + 1, n)
-        margin = g.init_margin if best_k == 0 else 0.0
+    entries: list[tuple[str, float | None, Callable | None]] = []  # (name, radius, edit)
+    proposal: dict = {}
+
+    def judge(fit: float, margin: float | None = None) -> None:
+        nonlocal best_k
+        k = len(runs) - 1
+        if margin is None:
+            margin = g.init_margin if best_k == 0 else 0.0
         if k > 0 and fit > runs[best_k][1] + margin:
             best_k = k
         keep_only(best_k)
+
+    edit: Callable[[ShapeTrainer], None] | None = None
+    for radius in radii:
+        fit = start(radius, None, len(runs) + 1, n)
+        entries.append(("coarse" if radius is None else f"r={radius:g}", radius, None))
+        if radius is None and opening:  # measured before keep_only may free the model
+            from voxnero.shape import proposals
+            edit, proposal = proposals.propose_open(runs[-1][2], co)
+            seconds += proposal["seconds"]
+        judge(fit)
+        if radius is None and opening and edit is not None:
+            fit = start(None, None, len(runs) + 1, n, edit)
+            entries.append(("coarse_open", None, edit))
+            judge(fit, co.open_margin)
     k_radius = best_k
-    names = ["coarse" if r is None else f"r={r:g}" for r in radii]
+    names = [e[0] for e in entries]
     first = names[0] if co.iters > 0 else f"r={g.init_radius:g}"
+    kept_name, kept_radius, kept_edit = entries[k_radius]
+    evidence = {"radii": [e[1] for e in entries], "psnr": [runs[i][1] for i in range(len(entries))],
+                "trial_steps": tr.cfg.iters}
+    if opening:
+        evidence["open"] = proposal
     decisions = [adaptive.Decision(
         "start" if co.iters > 0 else "init_radius",
-        "coarse" if radii[k_radius] is None else radii[k_radius],
+        kept_name if co.iters > 0 else kept_radius,
         names if co.iters > 0 else [g.init_radius] + list(g.init_candidates),
-        f"best fit of {len(radii)} complete runs to {tr.cfg.fit_rays} fixed training rays "
-        f"(another start must beat {first} by {g.init_margin:g} dB): "
+        f"best fit of {len(entries)} complete runs to {tr.cfg.fit_rays} fixed training rays "
+        f"(another start must beat {first} by {g.init_margin:g} dB"
+        + (f", the opened one by {co.open_margin:g} dB" if opening else "") + "): "
         + ", ".join(f"{nm}: {runs[i][1]:.2f} dB" for i, nm in enumerate(names)),
-        {"radii": radii, "psnr": [runs[i][1] for i in range(len(radii))],
-         "trial_steps": tr.cfg.iters}, tr.cfg.iters)]
+        evidence, tr.cfg.iters)]
     if roughs:
+        n0 = len(entries)
         for j, rough in enumerate(roughs):
-            k = len(radii) + j
-            fit = start(radii[k_radius], rough, k + 1, n)
+            k = n0 + j
+            fit = start(kept_radius, rough, k + 1, n, kept_edit)
             if fit > runs[best_k][1]:
                 best_k = k
             keep_only(best_k)
         values = [lc.init_roughness] + roughs
-        fits = [runs[k_radius][1]] + [runs[len(radii) + j][1] for j in range(len(roughs))]
-        kept = lc.init_roughness if best_k < len(radii) else roughs[best_k - len(radii)]
+        fits = [runs[k_radius][1]] + [runs[n0 + j][1] for j in range(len(roughs))]
+        kept = lc.init_roughness if best_k < n0 else roughs[best_k - n0]
         decisions.append(adaptive.Decision(
             "init_roughness", kept, values,
             f"best fit of {len(values)} complete runs from {names[k_radius]} "
             f"({tr.cfg.fit_rays} fixed training rays): "
             + ", ".join(f"{v:g}: {p:.2f} dB" for v, p in zip(values, fits, strict=True)),
-            {"values": values, "psnr": fits, "radius": radii[k_radius]}, tr.cfg.iters))
+            {"values": values, "psnr": fits, "radius": kept_radius}, tr.cfg.iters))
     name, _, win = runs[best_k]
     assert win is not None
     tr.outputs.mkdir(parents=True, exist_ok=True)
@@ -439,7 +470,7 @@ def race(tr: ShapeTrainer) -> Path:
     tr.write_decisions()
     summary = json.loads((tr.outputs / "shape.json").read_text())
     summary.update(train_time_s=seconds, race_steps=steps,
-                   init_radius="coarse" if radii[k_radius] is None else radii[k_radius],
+                   init_radius=kept_name if kept_radius is None else kept_radius,
                    init_roughness=win.cfg.light.init_roughness)
     (tr.outputs / "shape.json").write_text(json.dumps(summary, indent=2))
     return tr.outputs / "mesh.ply"

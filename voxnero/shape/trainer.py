@@ -95,6 +95,9 @@ class ShapeTrainer:
         self.coarse_step: CoarseStep | None = None
         """The finishing phase's coarse SDF step (``grid.coarse_step``), made at its first use."""
         self.step, self.train_time, self.last_eval = 0, 0.0, 0.0
+        self.start_edit: Callable[[ShapeTrainer], None] | None = None
+        """Applied to the SDF right after the coarse start (a race's proposal,
+        :func:`voxnero.shape.proposals.open_start`); not on resume."""
         self.occ_targets: OcclusionTargets | None = None
         self.eval_split = None
         if "test" in getattr(scene, "splits", {}):
@@ -251,6 +254,8 @@ class ShapeTrainer:
         self.load_checkpoint()
         if cfg.coarse.iters > 0 and not starts.coarse_done(self):
             starts.coarse_start(self)
+            if self.start_edit is not None:
+                self.start_edit(self)
             self.save_checkpoint()
         self.log(f"[shape] switches: {asdict(self.sw)}")
         for d in self.decisions:

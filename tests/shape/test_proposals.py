@@ -1,0 +1,74 @@
+"""voxnero/shape/proposals.py: the worst-fitted patch and the opened shell, against closed forms
+on a sphere (the race's use of them: tests/shape/test_trainer.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from voxnero.fields.grid import grid_points
+from voxnero.shape.proposals import opened_shell, worst_patch
+
+R = 0.6
+
+
+def _sphere_points(n: int = 4000, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 3))
+    return R * p / np.linalg.norm(p, axis=1, keepdims=True)
+
+
+def test_worst_patch_is_the_largest_connected_high_error_region():
+    """A cap of high error (z > 0.8 R) is returned whole; a single high point elsewhere (a
+    smaller component) and the low-error rest are not."""
+    p = _sphere_points()
+    err = np.full(len(p), 0.02)
+    cap = p[:, 2] > 0.8 * R
+    err[cap] = 0.06
+    lone = np.argmin(p[:, 2])  # the bottom point: high, but alone
+    err[lone] = 0.5
+    out = worst_patch(p, err, bin_size=0.05, k=1.5)
+    got = {tuple(x) for x in out}
+    want = {tuple(x) for x in p[cap]}
+    assert len(want - got) <= 0.05 * len(want)  # the cap (its rim may blur below the bar)
+    assert all(x[2] > 0.6 * R for x in out) and tuple(p[lone]) not in got
+
+
+def test_worst_patch_of_a_uniform_fit_is_empty_or_tiny():
+    p = _sphere_points()
+    err = np.random.default_rng(1).uniform(0.019, 0.021, len(p))
+    assert len(worst_patch(p, err, 0.05, 1.5)) == 0
+    assert len(worst_patch(p[:0], err[:0], 0.05, 1.5)) == 0
+
+
+@settings(max_examples=8, deadline=None)
+@given(tau=st.floats(0.02, 0.08), extra=st.floats(0.0, 0.05))
+def test_opened_shell_of_a_ball_is_a_bowl(tau, extra):
+    """h = |x| − R hollowed (walls 2τ) and cut within ρ = 2τ + extra of the top cap
+    (z > 0.7 R): the centre and the top of the wall are outside, the bottom of the wall
+    inside, and outside the ball, away from the cut, nothing changes (f = h there)."""
+    res = 41
+    corners = grid_points(res, torch.tensor([[-1.0] * 3, [1.0] * 3]))
+    h = (corners.norm(dim=-1) - R)[None]
+    cap = _sphere_points(20000)
+    cap = cap[cap[:, 2] > 0.7 * R]
+    rho = 2 * tau + extra
+    f = opened_shell(h, corners, cap, tau, rho)
+
+    def at(x, y, z):
+        from voxnero.fields.grid import grid_sample_points
+
+        pt = torch.tensor([[x, y, z]], dtype=torch.float32)
+        return float(grid_sample_points(f, pt, torch.tensor([[-1.0] * 3, [1.0] * 3]))[0, 0])
+
+    assert at(0, 0, 0) > 0  # hollow
+    assert at(0, 0, R - tau) > 0  # the wall under the patch is cut
+    voxel = 2.0 / (res - 1)
+    assert at(0, 0, -R + tau) < voxel  # the bottom wall stays (within a voxel of trilinear)
+    from scipy.spatial import cKDTree
+
+    far = torch.from_numpy(cKDTree(cap).query(corners.reshape(-1, 3).numpy())[0] > rho)
+    out = (h > 0).reshape(-1) & far  # outside the ball and away from the cut: unchanged
+    assert torch.allclose(f.reshape(-1)[out], h.reshape(-1)[out])

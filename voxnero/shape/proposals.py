@@ -1,0 +1,213 @@
+"""One more start for the race: the carved start, hollow and opened where its run fits worst.
+
+The coarse stage fills a cavity (a mug's, a bowl's): the photos see into it but never through
+it to the background, so the density is opaque from the rim down, and the SDF stage, which
+only moves its surface where it is, keeps the lid and paints the cavity's inside on it
+(docs/STAGE1.md findings 41-43). Started from the true surface, `standard` holds the cavity
+open and fits the photos better than the lid (finding 42). What is missing is a start that
+proposes it, and the finished carved run points at it: the lid is where it explains the photos
+worst (mug_glaze: per-pixel error 0.049 on the lid against 0.026 on the true surface; the
+bowl 0.087 against 0.031; finding 44). So:
+
+1. :func:`surface_error`: render the carved run's training views (every ``downscale``-th pixel
+   block), cast the same rays on its mesh and average the error per cube of space on its
+   surface;
+2. :func:`worst_patch`: the largest connected set of those cubes whose error, blurred over
+   the neighbours, exceeds ``k`` times the surface's median;
+3. :func:`opened_shell`: the carved start's signed distance made a shell of thickness
+   ``2τ`` (``|h + τ| − τ``) and cut away within ``ρ`` of the patch.
+
+A solid object also has a worst patch (the gear's tooth edges); its opened start then fits worse
+and the race keeps the carved one: the proposal is judged by the photos, as every start is.
+Unit frame throughout; errors in sRGB-encoded units (|Δ| of ``x^(1/2.2)``, mean of channels).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+if TYPE_CHECKING:
+    from voxnero.shape.trainer import ShapeTrainer
+
+BLUR_BINS = 1.0
+"""Gaussian sigma (in bins) of the error blurred over neighbouring surface bins."""
+MIN_PIXELS = 20
+"""Pixels a surface bin needs to count (fewer: its mean error is noise)."""
+
+
+def surface_error(tr: ShapeTrainer, bin_size: float, downscale: int = 2,
+                  chunk: int = 8192) -> tuple[np.ndarray, np.ndarray]:
+    """The fit of ``tr``'s model over its own surface.
+
+    Every training view is rendered at the centres of ``downscale × downscale`` pixel blocks
+    (the photos area-averaged to match) and the same rays are cast on the model's mesh; each
+    hit adds its pixel's error to the cube of side ``bin_size`` that holds it.
+
+    Returns:
+        ``points (M, 3)``: the mean hit point of each cube with at least :data:`MIN_PIXELS`
+        hits (unit frame); ``error (M,)``: their mean per-pixel error.
+    """
+    from voxnero.cameras.rays import image_rays
+    from voxnero.eval.views import MeshCaster
+    from voxnero.shape import schedules
+    from voxnero.shape.renderer import as_photographed, render_rays
+
+    caster = MeshCaster(tr.extract())
+    ds = max(1, int(downscale))
+    h, w = tr.h // ds, tr.w // ds
+    photos = tr.images.view(tr.n_img, tr.h, tr.w, 3)[:, :h * ds, :w * ds]
+    photos = photos.reshape(tr.n_img, h, ds, w, ds, 3).mean((2, 4))
+    s = schedules.sharpness(tr.cfg, tr.step)
+    nc = schedules.coarse_samples(tr.cfg, tr.step)
+    keys, errs, pts = [], [], []
+    tr.model.env.prepare()
+    with torch.no_grad():
+        for c in range(tr.n_img):
+            o, d = image_rays(tr.cams, c, ds)
+            o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+            hit = caster.cast(o.cpu().numpy(), d.cpu().numpy())["t"]
+            sel = np.flatnonzero(np.isfinite(hit))
+            if sel.size == 0:
+                continue
+            idx = torch.from_numpy(sel).to(o.device)
+            rgb = torch.cat([render_rays(tr.model, o[idx[i:i + chunk]], d[idx[i:i + chunk]], s,
+                                         tr.cfg, train=False, coarse=nc)["rgb"]
+                             for i in range(0, idx.numel(), chunk)])
+            rgb = as_photographed(tr.model, rgb, torch.full_like(idx, c))
+            target = photos[c].reshape(-1, 3)[idx]
+            err = (_encode(rgb) - _encode(target)).abs().mean(-1).cpu().numpy()
+            p = o[idx].cpu().numpy() + hit[sel, None] * d[idx].cpu().numpy()
+            keys.append(np.floor(p / bin_size).astype(np.int64))
+            errs.append(err)
+            pts.append(p)
+    tr.model.env.release()
+    if not keys:
+        return np.zeros((0, 3)), np.zeros(0)
+    key, err, p = np.concatenate(keys), np.concatenate(errs), np.concatenate(pts)
+    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    mean_err = np.bincount(inv, err) / count
+    mean_p = np.stack([np.bincount(inv, p[:, k]) for k in range(3)], 1) / count[:, None]
+    keep = count >= MIN_PIXELS
+    return mean_p[keep], mean_err[keep]
+
+
+def _encode(rgb: torch.Tensor) -> torch.Tensor:
+    """Linear RGB clipped to [0, 1] and gamma-encoded (x^(1/2.2)), as an 8-bit photo stores it."""
+    return rgb.clamp(0.0, 1.0) ** (1.0 / 2.2)
+
+
+def worst_patch(points: np.ndarray, error: np.ndarray, bin_size: float, k: float
+                ) -> np.ndarray:
+    """The largest connected (26-neighbourhood of cubes of side ``bin_size``) set of surface
+    points whose error, blurred over the neighbouring points (sigma :data:`BLUR_BINS` cubes),
+    exceeds ``k`` times the median of the blurred errors; ``(P, 3)``, empty if none.
+
+    Args:
+        points: ``(M, 3)`` surface points, one per cube (:func:`surface_error`).
+        error: ``(M,)`` their errors.
+    """
+    from scipy import ndimage
+
+    if points.shape[0] == 0:
+        return points
+    ijk = np.floor(points / bin_size).astype(np.int64)
+    ijk -= ijk.min(0) - 2
+    shape = tuple(ijk.max(0) + 3)
+    e, wgt = np.zeros(shape), np.zeros(shape)
+    e[tuple(ijk.T)] = error
+    wgt[tuple(ijk.T)] = 1.0
+    blurred = ndimage.gaussian_filter(e, BLUR_BINS) / np.maximum(
+        ndimage.gaussian_filter(wgt, BLUR_BINS), 1e-12)
+    b = blurred[tuple(ijk.T)]
+    high = b > k * np.median(b)
+    mask = np.zeros(shape, bool)
+    mask[tuple(ijk[high].T)] = True
+    label, n = ndimage.label(mask, np.ones((3, 3, 3), bool))
+    if n == 0:
+        return points[:0]
+    sizes = np.bincount(label.ravel())[1:]
+    return points[label[tuple(ijk.T)] == int(np.argmax(sizes)) + 1]
+
+
+def opened_shell(sdf: torch.Tensor, corners: torch.Tensor, patch: np.ndarray, tau: float,
+                 rho: float) -> torch.Tensor:
+    """The start ``max(|h + τ| − τ, ρ − dist(x, patch))``: the solid of ``h`` < 0 hollowed to
+    a shell of thickness ``2τ`` and cut away within ``ρ`` of the patch points (a lower bound of
+    the distance to the result, as an intersection of two such fields).
+
+    Args:
+        sdf: ``(1, D, H, W)`` signed distance ``h`` (negative inside) at ``corners``.
+        corners: ``(D, H, W, 3)`` their positions (unit frame, last axis x, y, z).
+        patch: ``(P, 3)`` points of the surface to open (empty: only hollowed).
+        tau, rho: half the wall thickness and the radius cut around the patch (unit frame).
+
+    Returns:
+        ``(1, D, H, W)`` the new signed distance, ``sdf``'s dtype and device.
+    """
+    from scipy.spatial import cKDTree
+
+    shell = (sdf + tau).abs() - tau
+    if patch.shape[0] == 0:
+        return shell
+    far = float(rho) + 1.0
+    dist, _ = cKDTree(patch).query(corners.reshape(-1, 3).cpu().numpy(),
+                                   distance_upper_bound=far)
+    dist = torch.from_numpy(np.minimum(dist, far)).to(sdf).view(sdf.shape)
+    return torch.maximum(shell, rho - dist)
+
+
+def open_start(patch: np.ndarray, shell_voxels: float):
+    """An edit of a trainer's carved start (``ShapeTrainer.start_edit``): its SDF grid, just
+    set from the coarse hull, becomes :func:`opened_shell` with τ = ``shell_voxels`` coarse
+    voxels and ρ = 2τ plus one voxel of the SDF grid (the membrane left at the patch lies
+    within 2τ of it); the decision "open" records it."""
+    from voxnero.fields.grid import grid_points
+    from voxnero.shape import adaptive
+
+    def edit(tr: ShapeTrainer) -> None:
+        g = tr.model.sdf
+        cv = 2.0 * tr.cfg.grid.bound / (tr.cfg.coarse.res - 1)
+        tau = shell_voxels * cv
+        rho = 2.0 * tau + g.voxel
+        h = g.grid.detach()
+        corners = grid_points(h.shape[-1], g.bounds.cpu().float())
+        f = opened_shell(h, corners, patch, tau, rho)
+        n0, n1 = int((h < 0).sum()), int((f < 0).sum())
+        with torch.no_grad():
+            g.grid.copy_(f)
+        tr.decisions.append(adaptive.Decision(
+            "open", True, shell_voxels,
+            f"the carved start hollowed to walls {2 * tau:.3f} thick and opened within "
+            f"{rho:.3f} of the {patch.shape[0]} surface cubes the carved run fitted worst "
+            f"({n0} -> {n1} grid corners inside)",
+            {"patch_points": int(patch.shape[0]), "tau": round(tau, 5), "rho": round(rho, 5),
+             "inside_before": n0, "inside_after": n1}, 0))
+
+    return edit
+
+
+def propose_open(tr: ShapeTrainer, co) -> tuple:
+    """The opened start from a finished carved run ``tr`` (``co``: its
+    :class:`~voxnero.shape.config.CoarseConfig`): the :func:`open_start` edit of its
+    :func:`worst_patch` (``None`` if no patch) and the evidence for the race's decision."""
+    import time
+
+    t0 = time.perf_counter()
+    cv = 2.0 * tr.cfg.grid.bound / (co.res - 1)
+    bin_size = 1.5 * cv
+    points, error = surface_error(tr, bin_size)
+    patch = worst_patch(points, error, bin_size, co.open_k)
+    seconds = time.perf_counter() - t0
+    evidence = {"surface_cubes": int(points.shape[0]), "patch_cubes": int(patch.shape[0]),
+                "median_error": round(float(np.median(error)), 5) if error.size else None,
+                "k": co.open_k, "bin": round(bin_size, 5), "seconds": round(seconds, 2)}
+    tr.log(f"[shape] worst-fitted patch of the carved run: {patch.shape[0]} of "
+           f"{points.shape[0]} surface cubes above {co.open_k:g} x the median error "
+           f"({seconds:.0f} s)")
+    if patch.shape[0] == 0:
+        return None, evidence
+    return open_start(patch, co.open_shell), evidence
