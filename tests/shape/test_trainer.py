@@ -436,6 +436,31 @@ def test_coarse_start_proposes_its_opened_shell_and_keeps_the_better_fit(scene, 
     assert (tmp_path / "mesh.ply").is_file()
 
 
+def test_race_judges_the_opened_start_with_its_margin_and_records_a_kept_radius(
+        scene, tmp_path, monkeypatch):
+    """With fixed fits (``fit_psnr`` replaced): an opened start 0.05 dB above the carved one
+    stays below ``coarse.open_margin`` (0.1) and is not kept; the sphere 10 dB above both is,
+    and the decision's value is its radius (a number), as without the opened start."""
+    from voxnero.shape import proposals
+
+    monkeypatch.setattr(proposals, "MIN_PIXELS", 3)
+    fits = {"coarse": 10.0, "coarse_open": 10.05, "r0.7": 20.0}
+    monkeypatch.setattr(starts, "fit_psnr", lambda child: fits[child.out.name])
+    cfg = _coarse_cfg(100, iters=2)
+    cfg.coarse.race, cfg.coarse.open_worst, cfg.coarse.open_k = True, True, 1.0
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
+    tr.run()
+    dec = json.loads((tmp_path / "decisions.json").read_text())["start"]
+    assert dec["setting"] == ["coarse", "coarse_open", "r=0.7"]
+    assert dec["evidence"]["psnr"] == [10.0, 10.05, 20.0]
+    assert dec["value"] == 0.7
+    fits["r0.7"] = 0.0  # the same race again: now the carved start stays
+    tr = ShapeTrainer(cfg, scene, tmp_path / "again", progress=False, log=lambda s: None)
+    tr.run()
+    again = json.loads((tmp_path / "again" / "decisions.json").read_text())["start"]
+    assert again["value"] == "coarse"
+
+
 def test_coarse_stage_fits_a_finer_env_map_and_hands_on_its_area_average(scene, tmp_path,
                                                                          monkeypatch):
     """With ``coarse.env_height`` above ``light.env_height`` the coarse stage fits its own finer

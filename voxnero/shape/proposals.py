@@ -19,7 +19,8 @@ bowl 0.087 against 0.031; finding 44). So:
 
 A solid object also has a worst patch (the gear's tooth edges); its opened start then fits worse
 and the race keeps the carved one: the proposal is judged by the photos, as every start is.
-Unit frame throughout; errors in sRGB-encoded units (|Δ| of ``x^(1/2.2)``, mean of channels).
+Unit frame throughout; a pixel's error is the one the training steers its sampling by
+(:func:`voxnero.shape.losses.pixel_error`, in ``loss.color_space``: sRGB-encoded by default).
 """
 
 from __future__ import annotations
@@ -44,7 +45,8 @@ def surface_error(tr: ShapeTrainer, bin_size: float, downscale: int = 2,
 
     Every training view is rendered at the centres of ``downscale × downscale`` pixel blocks
     (the photos area-averaged to match) and the same rays are cast on the model's mesh; each
-    hit adds its pixel's error to the cube of side ``bin_size`` that holds it.
+    hit adds its pixel's error (:func:`voxnero.shape.losses.pixel_error`) to the cube of side
+    ``bin_size`` that holds it.
 
     Returns:
         ``points (M, 3)``: the mean hit point of each cube with at least :data:`MIN_PIXELS`
@@ -52,7 +54,7 @@ def surface_error(tr: ShapeTrainer, bin_size: float, downscale: int = 2,
     """
     from voxnero.cameras.rays import image_rays
     from voxnero.eval.views import MeshCaster
-    from voxnero.shape import schedules
+    from voxnero.shape import losses, schedules
     from voxnero.shape.renderer import as_photographed, render_rays
 
     caster = MeshCaster(tr.extract())
@@ -68,7 +70,8 @@ def surface_error(tr: ShapeTrainer, bin_size: float, downscale: int = 2,
         for c in range(tr.n_img):
             o, d = image_rays(tr.cams, c, ds)
             o, d = o.reshape(-1, 3), d.reshape(-1, 3)
-            hit = caster.cast(o.cpu().numpy(), d.cpu().numpy())["t"]
+            o_np, d_np = o.cpu().numpy(), d.cpu().numpy()
+            hit = caster.cast(o_np, d_np)["t"]
             sel = np.flatnonzero(np.isfinite(hit))
             if sel.size == 0:
                 continue
@@ -78,8 +81,8 @@ def surface_error(tr: ShapeTrainer, bin_size: float, downscale: int = 2,
                              for i in range(0, idx.numel(), chunk)])
             rgb = as_photographed(tr.model, rgb, torch.full_like(idx, c))
             target = photos[c].reshape(-1, 3)[idx]
-            err = (_encode(rgb) - _encode(target)).abs().mean(-1).cpu().numpy()
-            p = o[idx].cpu().numpy() + hit[sel, None] * d[idx].cpu().numpy()
+            err = losses.pixel_error(rgb, target, tr.cfg.loss.color_space).cpu().numpy()
+            p = o_np[sel] + hit[sel, None] * d_np[sel]
             keys.append(np.floor(p / bin_size).astype(np.int64))
             errs.append(err)
             pts.append(p)
@@ -93,11 +96,6 @@ def surface_error(tr: ShapeTrainer, bin_size: float, downscale: int = 2,
     mean_p = np.stack([np.bincount(inv, p[:, k]) for k in range(3)], 1) / count[:, None]
     keep = count >= MIN_PIXELS
     return mean_p[keep], mean_err[keep]
-
-
-def _encode(rgb: torch.Tensor) -> torch.Tensor:
-    """Linear RGB clipped to [0, 1] and gamma-encoded (x^(1/2.2)), as an 8-bit photo stores it."""
-    return rgb.clamp(0.0, 1.0) ** (1.0 / 2.2)
 
 
 def worst_patch(points: np.ndarray, error: np.ndarray, bin_size: float, k: float

@@ -422,7 +422,7 @@ def race(tr: ShapeTrainer) -> Path:
         evidence["open"] = proposal
     decisions = [adaptive.Decision(
         "start" if co.iters > 0 else "init_radius",
-        kept_name if co.iters > 0 else kept_radius,
+        kept_name if kept_radius is None else kept_radius,
         names if co.iters > 0 else [g.init_radius] + list(g.init_candidates),
         f"best fit of {len(entries)} complete runs to {tr.cfg.fit_rays} fixed training rays "
         f"(another start must beat {first} by {g.init_margin:g} dB"
