@@ -72,3 +72,33 @@ def test_opened_shell_of_a_ball_is_a_bowl(tau, extra):
     far = torch.from_numpy(cKDTree(cap).query(corners.reshape(-1, 3).numpy())[0] > rho)
     out = (h > 0).reshape(-1) & far  # outside the ball and away from the cut: unchanged
     assert torch.allclose(f.reshape(-1)[out], h.reshape(-1)[out])
+
+
+def test_open_start_hollows_the_finished_field_not_the_start_it_replaces():
+    """The edit samples the finished run's field (a ball of radius R on its own 41³ grid over
+    [-1, 1]³) at the start grid's corners (33³ over [-0.8, 0.8]³, holding a larger ball, the
+    hull): the result is the opened shell of the ball of R within trilinear error, and the
+    decision "open" counts the ball's corners inside before the hollowing, not the hull's."""
+    from types import SimpleNamespace
+
+    from voxnero.shape.proposals import open_start
+
+    src_bounds = torch.tensor([[-1.0] * 3, [1.0] * 3])
+    src = (grid_points(41, src_bounds).norm(dim=-1) - R)[None]
+    bounds = torch.tensor([[-0.8] * 3, [0.8] * 3])
+    corners = grid_points(33, bounds)
+    hull = (corners.norm(dim=-1) - 0.75)[None]
+    sdf = SimpleNamespace(grid=torch.nn.Parameter(hull.clone()), bounds=bounds, voxel=0.05)
+    cfg = SimpleNamespace(grid=SimpleNamespace(bound=1.0), coarse=SimpleNamespace(res=41))
+    tr = SimpleNamespace(model=SimpleNamespace(sdf=sdf), cfg=cfg, decisions=[])
+    cap = _sphere_points(20000)
+    cap = cap[cap[:, 2] > 0.7 * R]
+    open_start(cap, 1.0, (src, src_bounds))(tr)
+    tau = 1.0 * 2.0 / 40
+    want = opened_shell((corners.norm(dim=-1) - R)[None], corners, cap, tau, 2 * tau + 0.05)
+    err = (sdf.grid.detach() - want).abs()
+    assert float(err.max()) < 0.05 ** 2  # trilinear error of |x| on a 0.05 grid: ~h²/(8 R)
+    ev = tr.decisions[-1].evidence
+    ball = int((corners.norm(dim=-1) < R).sum())
+    assert abs(ev["inside_before"] - ball) <= 0.01 * ball < int((hull < 0).sum())
+    assert ev["inside_after"] == int((sdf.grid < 0).sum()) < ev["inside_before"]

@@ -446,7 +446,7 @@ def test_race_judges_the_opened_start_with_its_margin_and_records_a_kept_radius(
     monkeypatch.setattr(proposals, "MIN_PIXELS", 3)
     fits = {"coarse": 10.0, "coarse_open": 10.05, "r0.7": 20.0}
     monkeypatch.setattr(starts, "fit_psnr", lambda child: fits[child.out.name])
-    cfg = _coarse_cfg(100, iters=2)
+    cfg = _coarse_cfg(250, iters=2)  # a hull at the sphere's radius: the opened shell has walls
     cfg.coarse.race, cfg.coarse.open_worst, cfg.coarse.open_k = True, True, 1.0
     tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
     tr.run()
@@ -459,6 +459,54 @@ def test_race_judges_the_opened_start_with_its_margin_and_records_a_kept_radius(
     tr.run()
     again = json.loads((tmp_path / "again" / "decisions.json").read_text())["start"]
     assert again["value"] == "coarse"
+
+
+def test_race_keeps_an_opened_start_only_with_the_carved_runs_genus(scene, tmp_path,
+                                                                     monkeypatch):
+    """An opened start that fits far better but ends with another genus than the carved run
+    (a tunnel through a wall the shell left thin) is not kept; with the same genus it is.
+    The genera come from the runs' ``mesh.ply`` and join the decision's evidence."""
+    from voxnero.shape import proposals
+
+    monkeypatch.setattr(proposals, "MIN_PIXELS", 3)
+    monkeypatch.setattr(starts, "fit_psnr", lambda child: {"coarse": 10.0,
+                                                           "coarse_open": 20.0}[child.out.name])
+    genera = {"coarse": 1, "coarse_open": 2}
+    seen = []
+
+    def fake_genus(path):
+        seen.append(path)
+        return genera[path.parent.name]
+
+    monkeypatch.setattr(starts, "mesh_genus", fake_genus)
+    cfg = _coarse_cfg(250, iters=2)  # a hull at the sphere's radius: the opened shell has walls
+    cfg.coarse.race, cfg.coarse.open_worst, cfg.coarse.open_k = False, True, 1.0
+    tr = ShapeTrainer(cfg, scene, tmp_path / "tunnel", progress=False, log=lambda s: None)
+    tr.run()
+    dec = json.loads((tmp_path / "tunnel" / "decisions.json").read_text())["start"]
+    assert dec["value"] == "coarse" and dec["evidence"]["open"]["genus"] == [1, 2]
+    assert all(p.name == "mesh.ply" and p.is_file() for p in seen)
+    genera["coarse_open"] = 1
+    tr = ShapeTrainer(cfg, scene, tmp_path / "same", progress=False, log=lambda s: None)
+    tr.run()
+    dec = json.loads((tmp_path / "same" / "decisions.json").read_text())["start"]
+    assert dec["value"] == "coarse_open" and dec["evidence"]["open"]["genus"] == [1, 1]
+
+
+def test_mesh_genus_counts_the_tunnels_of_the_largest_component(tmp_path):
+    """``starts.mesh_genus`` on written meshes: a torus 1, a sphere 0 (with a small torus
+    beside it: only the largest component counts), an open mesh None."""
+    import open3d as o3d
+
+    torus = o3d.geometry.TriangleMesh.create_torus(0.5, 0.2)
+    sphere = o3d.geometry.TriangleMesh.create_sphere(0.8)
+    small = o3d.geometry.TriangleMesh.create_torus(0.1, 0.03).translate((2.0, 0.0, 0.0))
+    open_ = o3d.geometry.TriangleMesh(sphere)
+    open_.triangles = o3d.utility.Vector3iVector(np.asarray(sphere.triangles)[1:])
+    for name, m, expect in (("torus", torus, 1), ("sphere", sphere + small, 0),
+                            ("open", open_, None)):
+        o3d.io.write_triangle_mesh(str(tmp_path / f"{name}.ply"), m)
+        assert starts.mesh_genus(tmp_path / f"{name}.ply") == expect
 
 
 def test_coarse_stage_fits_a_finer_env_map_and_hands_on_its_area_average(scene, tmp_path,

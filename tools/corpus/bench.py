@@ -37,7 +37,6 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from tools import tradeoff  # noqa: E402
-from tools.corpus import shapes  # noqa: E402
 from voxnero.batch.process import read_json  # noqa: E402
 
 COLUMNS = ["scene", "preset", "stage", "status", "time_s", "shape_s", "material_s", "chamfer",
@@ -47,21 +46,10 @@ COLUMNS = ["scene", "preset", "stage", "status", "time_s", "shape_s", "material_
 
 def mesh_topology(path: Path) -> tuple[int | None, int]:
     """Genus of the largest connected component of the mesh at ``path`` (None: not closed or
-    not manifold) and the number of components."""
-    import numpy as np
-    import open3d as o3d
+    not manifold) and the number of components (:func:`voxnero.mesh.topology.mesh_topology`)."""
+    from voxnero.mesh.topology import mesh_topology as topology
 
-    m = o3d.io.read_triangle_mesh(str(path))
-    m.remove_duplicated_vertices()
-    tri = np.asarray(m.triangles)
-    if len(tri) == 0:
-        return None, 0
-    label, counts, _ = m.cluster_connected_triangles()
-    label = np.asarray(label)
-    big = tri[label == int(np.argmax(np.asarray(counts)))]
-    used, inv = np.unique(big, return_inverse=True)
-    return shapes.genus(inv.reshape(-1, 3), len(used)), len(counts)
-
+    return topology(path)
 
 
 def run_dirs(out: Path, scene: str, preset: str) -> tuple[Path, Path]:

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from voxnero.mesh.topology import genus  # noqa: F401  (the corpus's meshes' genus)
+
 SDF = Callable[[np.ndarray], np.ndarray]
 BOUND = 0.95
 """Half width of the sampling cube (world units); every shape lies in the sphere of radius 0.9."""
@@ -180,35 +182,6 @@ def finish(vertices: np.ndarray, triangles: np.ndarray) -> Mesh:
     m.remove_unreferenced_vertices()
     m.compute_vertex_normals()
     return Mesh(np.asarray(m.vertices), np.asarray(m.triangles), np.asarray(m.vertex_normals))
-
-
-def genus(triangles: np.ndarray, n_vertices: int | None = None) -> int | None:
-    """Total genus of a closed triangle mesh from its Euler characteristic, per component.
-
-    ``g = Σ_c (2 - χ_c) / 2`` with ``χ = V - E + F``. Returns None when the mesh is not a
-    closed 2-manifold (an edge not shared by exactly two faces), where the genus is undefined.
-    """
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
-    t = np.asarray(triangles, dtype=np.int64)
-    if len(t) == 0:
-        return None
-    n = int(n_vertices if n_vertices is not None else t.max() + 1)
-    e = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
-    edges, counts = np.unique(e, axis=0, return_counts=True)
-    if (counts != 2).any():
-        return None
-    adj = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    ncomp, label = connected_components(adj, directed=False)
-    used = np.zeros(n, bool)
-    used[t.ravel()] = True
-    v = np.bincount(label[used], minlength=ncomp)
-    f = np.bincount(label[t[:, 0]], minlength=ncomp)
-    ecount = np.bincount(label[edges[:, 0]], minlength=ncomp)
-    chi = v - ecount + f
-    live = f > 0
-    return int(((2 - chi[live]) // 2).sum())
 
 
 def normalised(vertices: np.ndarray, radius: float = 0.85) -> np.ndarray:

@@ -172,11 +172,12 @@ class CoarseConfig:
     the lid the hull puts over a cavity (a mug's, a bowl's: the photos see into it but never
     through it, so the density fills it); the carved start is made a shell 2·``open_shell``
     coarse voxels thick, opened under that patch, and runs complete too. The race keeps it if
-    it fits ``open_margin`` dB better. Off in every preset for now: at `standard` on the corpus
-    it is kept on the mug alone, which it opens (1.96 -> 1.08 px, normal error 12.2 -> 5.3 deg)
-    with one hole too many (genus 2 for 1); the bowl's opened start fits worse and the other
-    eight scenes' too, or tie (docs/STAGE1.md finding 44). `preview`'s fits do not tell an open
-    cavity from the lid (finding 28)."""
+    it fits ``open_margin`` dB better and its mesh has the carved run's genus (an opened lid
+    adds no tunnel). Off in every preset for now: at `standard` on the corpus it is kept on
+    the mug alone, which it opens (1.96 -> 1.08-1.11 px, normal error 12.2 -> 4.8-5.3 deg),
+    in one of two runs with one hole too many (genus 2 for 1: now not kept); the bowl's opened
+    start fits worse and the other eight scenes' too, or tie (docs/STAGE1.md findings 44-45).
+    `preview`'s fits do not tell an open cavity from the lid (finding 28)."""
     open_k: float = 1.5
     """Error above this many times the surface's median marks the worst patch."""
     open_shell: float = 2.0

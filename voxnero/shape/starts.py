@@ -309,12 +309,23 @@ def fit_psnr(tr: ShapeTrainer, chunk: int = 8192) -> float:
     return losses.psnr(rgb, target)
 
 
+def mesh_genus(path: Path) -> int | None:
+    """Genus of the largest component of the mesh file at ``path`` (None: not a closed
+    2-manifold), :func:`voxnero.mesh.topology.mesh_topology`."""
+    from voxnero.mesh.topology import mesh_topology
+
+    return mesh_topology(path)[0]
+
+
 def race(tr: ShapeTrainer) -> Path:
     """Race the starts of ``tr``'s config (as given, ``tr.cfg_in``); ``tr`` becomes the winner.
 
     1. Initial radii, at ``light.init_roughness``: ``grid.init_radius`` first, then
        ``grid.init_candidates`` (folders ``r<radius>``); another radius must beat
-       ``init_radius``'s fit by ``grid.init_margin`` dB to replace it.
+       ``init_radius``'s fit by ``grid.init_margin`` dB to replace it. With a coarse stage its
+       carved start comes first (folder ``coarse``); with ``coarse.open_worst`` its opened
+       shell (:mod:`voxnero.shape.proposals`, folder ``coarse_open``) follows it and is kept
+       if it fits ``coarse.open_margin`` dB better *and* its mesh has the carved run's genus.
     2. Initial roughness: each of ``light.init_roughness_candidates`` from the kept radius
        (folders ``r<radius>_rough<value>``); it replaces the kept start if it fits better.
 
@@ -411,7 +422,17 @@ def race(tr: ShapeTrainer) -> Path:
         if radius is None and opening and edit is not None:
             fit = start(None, None, len(runs) + 1, n, edit)
             entries.append(("coarse_open", None, edit))
-            judge(fit, co.open_margin)
+            # opening a cavity's lid adds no tunnel: a run that ends with another genus than
+            # the carved one's made one (a shell's wall holed), whatever its fit
+            genera = [mesh_genus(tr.out / "starts" / runs[k][0] / "mesh.ply")
+                      for k in (len(runs) - 2, len(runs) - 1)]
+            proposal["genus"] = genera
+            if genera[0] is not None and genera[1] == genera[0]:
+                judge(fit, co.open_margin)
+            else:
+                tr.log(f"[shape] start coarse_open: genus {genera[1]} against the carved "
+                       f"start's {genera[0]}: not kept")
+                keep_only(best_k)
     k_radius = best_k
     names = [e[0] for e in entries]
     first = names[0] if co.iters > 0 else f"r={g.init_radius:g}"
@@ -426,7 +447,8 @@ def race(tr: ShapeTrainer) -> Path:
         names if co.iters > 0 else [g.init_radius] + list(g.init_candidates),
         f"best fit of {len(entries)} complete runs to {tr.cfg.fit_rays} fixed training rays "
         f"(another start must beat {first} by {g.init_margin:g} dB"
-        + (f", the opened one by {co.open_margin:g} dB" if opening else "") + "): "
+        + (f", the opened one by {co.open_margin:g} dB with the carved one's genus"
+           if opening else "") + "): "
         + ", ".join(f"{nm}: {runs[i][1]:.2f} dB" for i, nm in enumerate(names)),
         evidence, tr.cfg.iters)]
     if roughs:
