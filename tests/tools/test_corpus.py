@@ -13,6 +13,7 @@ import pytest
 
 from tools.corpus import bench, bg_consistency, build, envmaps, rigs, shapes
 from tools.corpus.scenes import SCENES, Material, SceneSpec
+from voxnero.mesh.topology import genus, mesh_topology
 
 # --------------------------------------------------------------------------- shapes / genus
 
@@ -26,12 +27,12 @@ from tools.corpus.scenes import SCENES, Material, SceneSpec
 ])
 def test_genus_of_marching_cubes_meshes(sdf, res, expected):
     m = shapes.mesh_sdf(sdf, res)
-    assert shapes.genus(m.triangles, len(m.vertices)) == expected
+    assert genus(m.triangles, len(m.vertices)) == expected
 
 
 def test_genus_of_an_open_mesh_is_undefined():
     m = shapes.mesh_sdf(shapes.sphere(0.6), 32)
-    assert shapes.genus(m.triangles[1:], len(m.vertices)) is None
+    assert genus(m.triangles[1:], len(m.vertices)) is None
 
 
 def test_marching_cubes_normals_point_outward():
@@ -202,7 +203,7 @@ def test_mesh_topology_reads_the_largest_component(tmp_path):
     t = np.concatenate([big.triangles, small.triangles + len(big.vertices)])
     n = np.concatenate([big.normals, small.normals])
     write_mesh(tmp_path / "m.ply", v, t, n)
-    assert bench.mesh_topology(tmp_path / "m.ply") == (1, 2)
+    assert mesh_topology(tmp_path / "m.ply") == (1, 2)
 
 
 def test_collect_finds_the_mesh_of_a_point_with_overrides(tmp_path):

@@ -38,18 +38,11 @@ if str(REPO) not in sys.path:
 
 from tools import tradeoff  # noqa: E402
 from voxnero.batch.process import read_json  # noqa: E402
+from voxnero.mesh.topology import mesh_topology  # noqa: E402
 
 COLUMNS = ["scene", "preset", "stage", "status", "time_s", "shape_s", "material_s", "chamfer",
            "chamfer_px", "normal_deg", "genus", "genus_true", "components", "psnr_object",
            "relight_psnr", "pixel_size"]
-
-
-def mesh_topology(path: Path) -> tuple[int | None, int]:
-    """Genus of the largest connected component of the mesh at ``path`` (None: not closed or
-    not manifold) and the number of components (:func:`voxnero.mesh.topology.mesh_topology`)."""
-    from voxnero.mesh.topology import mesh_topology as topology
-
-    return topology(path)
 
 
 def run_dirs(out: Path, scene: str, preset: str) -> tuple[Path, Path]:

@@ -35,6 +35,7 @@ if str(REPO) not in sys.path:  # allow `python tools/corpus/build.py` as well as
 
 from tools.corpus import envmaps, render, rigs, shapes  # noqa: E402
 from tools.corpus.scenes import SceneSpec, by_name  # noqa: E402
+from voxnero.mesh.topology import genus  # noqa: E402
 
 WIDTH = HEIGHT = 256
 N_TRAIN, N_TEST = 96, 16
@@ -180,7 +181,7 @@ def build_scene(spec: SceneSpec, out: Path, shared: Path, spp: dict[str, int],
     else:
         mesh = spec.shape()
         write_mesh(mesh_path, mesh.vertices, mesh.triangles, mesh.normals)
-    g = shapes.genus(mesh.triangles, len(mesh.vertices))
+    g = genus(mesh.triangles, len(mesh.vertices))
     radius = float(np.linalg.norm(mesh.vertices, axis=1).max())
     timings["mesh"] = time.time() - t0
     # cameras

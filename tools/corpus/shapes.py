@@ -3,8 +3,8 @@
 Every shape ends as one closed triangle mesh in the world frame (+Z up, centred at the origin,
 inside the sphere of radius 0.9, like the dev scenes), made by marching cubes on a signed
 distance sampled on a regular grid (procedural shapes) or loaded from a registry package
-(pybullet's data). Its genus is computed from the Euler characteristic, so the benchmark can
-compare the topology of a reconstruction with the truth.
+(pybullet's data). Its genus (``voxnero.mesh.topology.genus``, from the Euler characteristic)
+lets the benchmark compare the topology of a reconstruction with the truth.
 
 Signed distances are functions ``(N, 3) float32 world points -> (N,) float32`` (negative
 inside). Most are exact; unions and cuts (``max``/``min``) are bounds, which is all marching
@@ -18,8 +18,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-
-from voxnero.mesh.topology import genus  # noqa: F401  (the corpus's meshes' genus)
 
 SDF = Callable[[np.ndarray], np.ndarray]
 BOUND = 0.95
