@@ -102,3 +102,71 @@ def test_open_start_hollows_the_finished_field_not_the_start_it_replaces():
     ball = int((corners.norm(dim=-1) < R).sum())
     assert abs(ev["inside_before"] - ball) <= 0.01 * ball < int((hull < 0).sum())
     assert ev["inside_after"] == int((sdf.grid < 0).sum()) < ev["inside_before"]
+
+
+class _PaintedModel(torch.nn.Module):
+    """A stand-in for the stage-1 model: features are positions, and the material head paints
+    metallic 1 and albedo 0.2 where z > 0.8 R (a "lid"), metallic 0 and albedo 0.8 elsewhere,
+    roughness 0.5 everywhere; the SDF grid only gives dtype and device."""
+
+    def __init__(self, lid: bool):
+        super().__init__()
+        self.lid = lid
+        self.sdf = type("G", (), {"grid": torch.zeros(1, 2, 2, 2)})()
+
+    def feat(self, x: torch.Tensor) -> torch.Tensor:
+        return x
+
+    def material(self, f: torch.Tensor):
+        on = (f[:, 2:3] > 0.8 * R).float() if self.lid else torch.zeros_like(f[:, 2:3])
+        albedo = (0.8 - 0.6 * on).expand(-1, 3)
+        return albedo, on, torch.full_like(on, 0.5)
+
+
+def test_material_contrast_is_the_largest_material_step_between_patch_and_ring():
+    """Patch = the cap z > 0.8 R: painted with another material, the contrast is the metallic
+    step 1 (the albedo's is 0.6, roughness 0), the patch's means are the lid's, the ring's the
+    wall's; painted like its surroundings the contrast is 0; an empty patch gives 0."""
+    from types import SimpleNamespace
+
+    from voxnero.shape.proposals import material_contrast
+
+    p = _sphere_points()
+    cap = p[:, 2] > 0.8 * R
+    lid = material_contrast(SimpleNamespace(model=_PaintedModel(True)), p, p[cap], 0.05)
+    assert lid["contrast"] == 1.0
+    assert lid["patch"] == [1.0, 0.5, 0.2, 0.2, 0.2]
+    assert lid["ring"] == [0.0, 0.5, 0.8, 0.8, 0.8]
+    same = material_contrast(SimpleNamespace(model=_PaintedModel(False)), p, p[cap], 0.05)
+    assert same["contrast"] == 0.0
+    assert material_contrast(SimpleNamespace(model=_PaintedModel(True)), p, p[:0],
+                             0.05)["contrast"] == 0.0
+
+
+def test_propose_open_proposes_only_a_patch_painted_unlike_its_surroundings(monkeypatch):
+    """``propose_open`` with the surface's fit given (a cap of high error): the lid-painted
+    cap is proposed (an edit) at ``open_contrast`` 0.3; the cap painted like the walls is not
+    (``None``, the contrast in the evidence); with ``open_contrast`` 0 it is."""
+    from types import SimpleNamespace
+
+    from voxnero.shape import proposals
+    from voxnero.shape.config import CoarseConfig
+
+    p = _sphere_points()
+    err = np.where(p[:, 2] > 0.8 * R, 0.06, 0.02)
+    monkeypatch.setattr(proposals, "surface_error", lambda tr, b: (p, err))
+    co = CoarseConfig(res=64, open_contrast=0.3)
+
+    def trainer(lid: bool):
+        m = _PaintedModel(lid)
+        m.sdf.bounds = torch.tensor([[-1.0] * 3, [1.0] * 3])
+        return SimpleNamespace(model=m, cfg=SimpleNamespace(grid=SimpleNamespace(bound=1.05)),
+                               log=lambda s: None)
+
+    edit, ev = proposals.propose_open(trainer(True), co)
+    # the blurred patch may take in a few wall points at the cap's rim
+    assert edit is not None and ev["material"]["contrast"] > 0.7 and ev["patch_cubes"] > 0
+    edit, ev = proposals.propose_open(trainer(False), co)
+    assert edit is None and ev["material"]["contrast"] == 0.0 and ev["min_contrast"] == 0.3
+    edit, _ = proposals.propose_open(trainer(False), CoarseConfig(res=64, open_contrast=0.0))
+    assert edit is not None

@@ -417,6 +417,7 @@ def test_coarse_start_proposes_its_opened_shell_and_keeps_the_better_fit(scene, 
     monkeypatch.setattr(proposals, "MIN_PIXELS", 3)  # 64² photos: few pixels per surface cube
     cfg = _coarse_cfg(250, iters=20)  # a hull at the sphere's radius
     cfg.coarse.open_worst, cfg.coarse.open_k = True, 1.0  # k = 1: a patch always exists
+    cfg.coarse.open_contrast = 0.0  # proposed whatever its material
     cfg.coarse.open_shell = 0.5  # the sphere is ~4 coarse voxels in radius: thinner walls
     cfg.coarse.sdf_first = 1.0
     assert starts.has_race(cfg)
@@ -448,6 +449,7 @@ def test_race_judges_the_opened_start_with_its_margin_and_records_a_kept_radius(
     monkeypatch.setattr(starts, "fit_psnr", lambda child: fits[child.out.name])
     cfg = _coarse_cfg(250, iters=2)  # a hull at the sphere's radius: the opened shell has walls
     cfg.coarse.race, cfg.coarse.open_worst, cfg.coarse.open_k = True, True, 1.0
+    cfg.coarse.open_contrast = 0.0
     tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
     tr.run()
     dec = json.loads((tmp_path / "decisions.json").read_text())["start"]
@@ -481,6 +483,7 @@ def test_race_keeps_an_opened_start_only_with_the_carved_runs_genus(scene, tmp_p
     monkeypatch.setattr(starts, "mesh_genus", fake_genus)
     cfg = _coarse_cfg(250, iters=2)  # a hull at the sphere's radius: the opened shell has walls
     cfg.coarse.race, cfg.coarse.open_worst, cfg.coarse.open_k = False, True, 1.0
+    cfg.coarse.open_contrast = 0.0
     tr = ShapeTrainer(cfg, scene, tmp_path / "tunnel", progress=False, log=lambda s: None)
     tr.run()
     dec = json.loads((tmp_path / "tunnel" / "decisions.json").read_text())["start"]

@@ -122,7 +122,7 @@ class CoarseConfig:
         "threshold": Range(0.0, 1.0, lo_open=True, hi_open=True),
         "bg_grow": at_least(0, 64), "bg_quantile": Range(0.0, 1.0),
         "open_k": Range(1.0, 100.0), "open_shell": positive(64.0),
-        "open_margin": Range(0.0, 10.0)}
+        "open_margin": Range(0.0, 10.0), "open_contrast": Range(0.0, 1.0)}
 
     iters: int = 0
     """Steps of the coarse stage; 0 = off (the SDF starts from the sphere ``grid.init_radius``
@@ -173,11 +173,13 @@ class CoarseConfig:
     through it, so the density fills it); the carved start is made a shell 2·``open_shell``
     coarse voxels thick, opened under that patch, and runs complete too. The race keeps it if
     it fits ``open_margin`` dB better and its mesh has the carved run's genus (an opened lid
-    adds no tunnel). Off in every preset for now: at `standard` on the corpus it is kept on
-    the mug alone, which it opens (1.96 -> 1.08-1.11 px, normal error 12.2 -> 4.8-5.3 deg),
-    in one of two runs with one hole too many (genus 2 for 1: now not kept); the bowl's opened
-    start fits worse and the other eight scenes' too, or tie (docs/STAGE1.md findings 44-45).
-    `preview`'s fits do not tell an open cavity from the lid (finding 28)."""
+    adds no tunnel). Proposed only for a patch painted with another material than the surface
+    around it (``open_contrast``: a lid, not an edge), so a solid object costs the error map
+    alone (30-40 s). Off here (`preview`'s fits do not tell an open cavity from the lid,
+    finding 28, and its 4 minutes hold no third run); on in `standard` and `quality`: on the
+    corpus it runs for the mug and the bowl alone and opens the mug (1.96 -> 0.95 px, normal
+    error 12.2 -> 5.1 deg); the bowl's opened start fits worse and the carved one stays
+    (docs/STAGE1.md findings 44-46)."""
     open_k: float = 1.5
     """Error above this many times the surface's median marks the worst patch."""
     open_shell: float = 2.0
@@ -187,6 +189,13 @@ class CoarseConfig:
     """dB by which the opened start must fit better than the carved one to be kept: a
     solid object's opened start can tie (table_oak +0.008 dB, 0.63 -> 0.95 px) where an open
     cavity wins clearly (mug_glaze +0.28 dB, 1.92 -> 1.08 px; docs/STAGE1.md finding 44)."""
+    open_contrast: float = 0.3
+    """The opened start is run only if the model's material on the worst patch differs from
+    the ring of surface around it by at least this much (largest absolute difference of the
+    mean metallic, roughness and linear albedo channels,
+    :func:`voxnero.shape.proposals.material_contrast`): a lid is painted with another
+    material to explain the cavity it hides, a solid object's worst patch (edges, its hardest
+    material) has its surroundings' (docs/STAGE1.md finding 46). 0 = every patch."""
     race: bool = True
     """Race the coarse start against the sphere of ``grid.init_radius`` (complete runs, the
     better final fit kept, :func:`voxnero.shape.starts.race`): a mirror's density can be a

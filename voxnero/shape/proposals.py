@@ -21,8 +21,11 @@ bowl 0.087 against 0.031; finding 44). So:
    37; the finished run's 10 and 0 after the same cut), and the mug's run from it ended with a
    tunnel too many in one run of two (finding 45).
 
-A solid object also has a worst patch (the gear's tooth edges); its opened start then fits worse
-and the race keeps the carved one: the proposal is judged by the photos, as every start is.
+A solid object also has a worst patch (the gear's tooth edges). Opened, it fits worse and the
+race keeps the carved start, at the cost of one more complete run; so
+:func:`material_contrast` first asks whether the patch is painted unlike the surface around it:
+a lid is (to explain the cavity it hides), an edge is not, and only a lid is proposed
+(finding 46). What is proposed is judged by the photos, as every start is.
 Unit frame throughout; a pixel's error is the one the training steers its sampling by
 (:func:`voxnero.shape.losses.pixel_error`, in ``loss.color_space``: sRGB-encoded by default).
 """
@@ -41,6 +44,9 @@ BLUR_BINS = 1.0
 """Gaussian sigma (in bins) of the error blurred over neighbouring surface bins."""
 MIN_PIXELS = 20
 """Pixels a surface bin needs to count (fewer: its mean error is noise)."""
+RING_BINS = 2.0
+"""Width (in bins) of the ring of surface bins around the worst patch that
+:func:`material_contrast` compares it with."""
 
 
 def surface_error(tr: ShapeTrainer, bin_size: float, downscale: int = 2,
@@ -135,6 +141,45 @@ def worst_patch(points: np.ndarray, error: np.ndarray, bin_size: float, k: float
     return points[label[tuple(ijk.T)] == int(np.argmax(sizes)) + 1]
 
 
+def material_contrast(tr: ShapeTrainer, points: np.ndarray, patch: np.ndarray,
+                      bin_size: float) -> dict:
+    """How much the model's material on the worst patch differs from the surface around it.
+
+    A lid is no surface of the object: to explain the cavity it hides (the inside's shadow, its
+    reflections of itself) the model paints it with another material than the walls it joins
+    (mug_glaze's lid metallic 0.51 against 0.01 on the glaze around it, bowl_silver's 0.20
+    against 0.85), where a real surface that fits worst (a gear's tooth edges) has the material
+    of its surroundings (docs/STAGE1.md finding 46).
+
+    Args:
+        points: ``(M, 3)`` surface points, one per cube (:func:`surface_error`), unit frame.
+        patch: ``(P, 3)`` the subset of ``points`` that :func:`worst_patch` returned.
+        bin_size: side of the cubes.
+
+    Returns:
+        ``{"patch": [...], "ring": [...], "contrast": c}``: mean (metallic, roughness, albedo
+        r, g, b) of the patch's points and of the ring (points not in the patch within
+        :data:`RING_BINS` cubes of it; albedo linear), and ``c`` the largest absolute
+        difference of the five (0 if either set is empty).
+    """
+    from scipy.spatial import cKDTree
+
+    if points.shape[0] == 0 or patch.shape[0] == 0:
+        return {"patch": None, "ring": None, "contrast": 0.0}
+    dist = cKDTree(patch).query(points)[0]
+    inside = dist < 1e-6 * bin_size
+    ring = ~inside & (dist <= RING_BINS * bin_size * (1 + 1e-6))
+    if not inside.any() or not ring.any():
+        return {"patch": None, "ring": None, "contrast": 0.0}
+    x = torch.from_numpy(points).to(tr.model.sdf.grid)
+    with torch.no_grad():
+        albedo, metallic, rough = tr.model.material(tr.model.feat(x))
+    mat = torch.cat([metallic.reshape(-1, 1), rough.reshape(-1, 1), albedo], 1).cpu().numpy()
+    a, b = mat[inside].mean(0), mat[ring].mean(0)
+    return {"patch": [round(float(v), 3) for v in a], "ring": [round(float(v), 3) for v in b],
+            "contrast": round(float(np.abs(a - b).max()), 4)}
+
+
 def opened_shell(sdf: torch.Tensor, corners: torch.Tensor, patch: np.ndarray, tau: float,
                  rho: float) -> torch.Tensor:
     """The start ``max(|h + τ| − τ, ρ − dist(x, patch))``: the solid of ``h`` < 0 hollowed to
@@ -209,7 +254,10 @@ def open_start(patch: np.ndarray, shell_voxels: float,
 def propose_open(tr: ShapeTrainer, co) -> tuple:
     """The opened start from a finished carved run ``tr`` (``co``: its
     :class:`~voxnero.shape.config.CoarseConfig`): the :func:`open_start` edit of its
-    :func:`worst_patch` (``None`` if no patch) and the evidence for the race's decision."""
+    :func:`worst_patch`, or ``None`` if there is no patch or the model's material on it differs
+    from its surroundings by less than ``co.open_contrast`` (:func:`material_contrast`: a lid
+    is painted with another material; 0 proposes every patch), and the evidence for the race's
+    decision."""
     import time
 
     t0 = time.perf_counter()
@@ -217,14 +265,18 @@ def propose_open(tr: ShapeTrainer, co) -> tuple:
     bin_size = 1.5 * cv
     points, error = surface_error(tr, bin_size)
     patch = worst_patch(points, error, bin_size, co.open_k)
+    contrast = material_contrast(tr, points, patch, bin_size)
     seconds = time.perf_counter() - t0
     evidence = {"surface_cubes": int(points.shape[0]), "patch_cubes": int(patch.shape[0]),
                 "median_error": round(float(np.median(error)), 5) if error.size else None,
-                "k": co.open_k, "bin": round(bin_size, 5), "seconds": round(seconds, 2)}
+                "k": co.open_k, "bin": round(bin_size, 5), "seconds": round(seconds, 2),
+                "material": contrast, "min_contrast": co.open_contrast}
     tr.log(f"[shape] worst-fitted patch of the carved run: {patch.shape[0]} of "
-           f"{points.shape[0]} surface cubes above {co.open_k:g} x the median error "
+           f"{points.shape[0]} surface cubes above {co.open_k:g} x the median error; its "
+           f"material differs from the ring around it by {contrast['contrast']:.2f} "
+           f"(metallic, roughness, albedo; an opened start needs {co.open_contrast:g}) "
            f"({seconds:.0f} s)")
-    if patch.shape[0] == 0:
+    if patch.shape[0] == 0 or contrast["contrast"] < co.open_contrast:
         return None, evidence
     source = (tr.model.sdf.grid.detach().cpu().clone(),
               tr.model.sdf.bounds.detach().cpu().float().clone())

@@ -324,8 +324,10 @@ def race(tr: ShapeTrainer) -> Path:
        ``grid.init_candidates`` (folders ``r<radius>``); another radius must beat
        ``init_radius``'s fit by ``grid.init_margin`` dB to replace it. With a coarse stage its
        carved start comes first (folder ``coarse``); with ``coarse.open_worst`` its opened
-       shell (:mod:`voxnero.shape.proposals`, folder ``coarse_open``) follows it and is kept
-       if it fits ``coarse.open_margin`` dB better *and* its mesh has the carved run's genus.
+       shell (:mod:`voxnero.shape.proposals`, folder ``coarse_open``) follows it when the
+       carved run's worst-fitted patch is painted unlike the surface around it (material
+       contrast ≥ ``coarse.open_contrast``: a lid), and is kept if it fits
+       ``coarse.open_margin`` dB better *and* its mesh has the carved run's genus.
     2. Initial roughness: each of ``light.init_roughness_candidates`` from the kept radius
        (folders ``r<radius>_rough<value>``); it replaces the kept start if it fits better.
 
@@ -418,6 +420,12 @@ def race(tr: ShapeTrainer) -> Path:
             from voxnero.shape import proposals
             edit, proposal = proposals.propose_open(runs[-1][2], co)
             seconds += proposal["seconds"]
+            if edit is None:
+                tr.log("[shape] no opened start: " + (
+                    "no worst-fitted patch" if not proposal["patch_cubes"] else
+                    f"the worst-fitted patch is painted like the surface around it (material "
+                    f"contrast {proposal['material']['contrast']:.2f} < {co.open_contrast:g}):"
+                    " a surface of the object, not a lid"))
         judge(fit)
         if radius is None and opening and edit is not None:
             fit = start(None, None, len(runs) + 1, n, edit)
