@@ -175,7 +175,7 @@ class CoarseConfig:
     it fits ``open_margin`` dB better and its mesh has the carved run's genus (an opened lid
     adds no tunnel). Proposed only for a patch painted with another material than the surface
     around it (``open_contrast``: a lid, not an edge), so a solid object costs the error map
-    alone (30-40 s). Off here (`preview`'s fits do not tell an open cavity from the lid,
+    alone (13-37 s). Off here (`preview`'s fits do not tell an open cavity from the lid,
     finding 28, and its 4 minutes hold no third run); on in `standard` and `quality`: on the
     corpus it runs for the mug and the bowl alone and opens the mug (1.96 -> 0.95 px, normal
     error 12.2 -> 5.1 deg); the bowl's opened start fits worse and the carved one stays
