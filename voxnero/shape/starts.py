@@ -456,7 +456,7 @@ def race(tr: ShapeTrainer) -> Path:
         f"best fit of {len(entries)} complete runs to {tr.cfg.fit_rays} fixed training rays "
         f"(another start must beat {first} by {g.init_margin:g} dB"
         + (f", the opened one by {co.open_margin:g} dB with the carved one's genus"
-           if opening else "") + "): "
+           if "coarse_open" in names else "") + "): "
         + ", ".join(f"{nm}: {runs[i][1]:.2f} dB" for i, nm in enumerate(names)),
         evidence, tr.cfg.iters)]
     if roughs:
