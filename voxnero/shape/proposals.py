@@ -171,11 +171,12 @@ def material_contrast(tr: ShapeTrainer, points: np.ndarray, patch: np.ndarray,
     ring = ~inside & (dist <= RING_BINS * bin_size * (1 + 1e-6))
     if not inside.any() or not ring.any():
         return {"patch": None, "ring": None, "contrast": 0.0}
-    x = torch.from_numpy(points).to(tr.model.sdf.grid)
+    used = inside | ring  # the material heads run on these points only
+    x = torch.from_numpy(points[used]).to(tr.model.sdf.grid)
     with torch.no_grad():
         albedo, metallic, rough = tr.model.material(tr.model.feat(x))
     mat = torch.cat([metallic.reshape(-1, 1), rough.reshape(-1, 1), albedo], 1).cpu().numpy()
-    a, b = mat[inside].mean(0), mat[ring].mean(0)
+    a, b = mat[inside[used]].mean(0), mat[ring[used]].mean(0)
     return {"patch": [round(float(v), 3) for v in a], "ring": [round(float(v), 3) for v in b],
             "contrast": round(float(np.abs(a - b).max()), 4)}
 
