@@ -461,6 +461,14 @@ def test_race_judges_the_opened_start_with_its_margin_and_records_a_kept_radius(
     tr.run()
     again = json.loads((tmp_path / "again" / "decisions.json").read_text())["start"]
     assert again["value"] == "coarse"
+    assert "the opened one by 0.1 dB" in again["reason"]
+    cfg.coarse.open_contrast = 1.0  # the gate proposes no opened start: none runs or is named
+    tr = ShapeTrainer(cfg, scene, tmp_path / "gated", progress=False, log=lambda s: None)
+    tr.run()
+    gated = json.loads((tmp_path / "gated" / "decisions.json").read_text())["start"]
+    assert gated["setting"] == ["coarse", "r=0.7"] and gated["value"] == "coarse"
+    assert "opened" not in gated["reason"]
+    assert not (tmp_path / "gated" / "starts" / "coarse_open").exists()
 
 
 def test_race_keeps_an_opened_start_only_with_the_carved_runs_genus(scene, tmp_path,
