@@ -74,34 +74,87 @@ def test_opened_shell_of_a_ball_is_a_bowl(tau, extra):
     assert torch.allclose(f.reshape(-1)[out], h.reshape(-1)[out])
 
 
-def test_open_start_hollows_the_finished_field_not_the_start_it_replaces():
-    """The edit samples the finished run's field (a ball of radius R on its own 41³ grid over
-    [-1, 1]³) at the start grid's corners (33³ over [-0.8, 0.8]³, holding a larger ball, the
-    hull): the result is the opened shell of the ball of R within trilinear error, and the
-    decision "open" counts the ball's corners inside before the hollowing, not the hull's."""
+def _sphere_mesh(radius: float = R, resolution: int = 80):
+    import open3d as o3d
+
+    return o3d.geometry.TriangleMesh.create_sphere(radius=radius, resolution=resolution)
+
+
+@settings(max_examples=6, deadline=None)
+@given(scale=st.floats(0.05, 1.0))
+def test_outer_distance_of_a_sphere_mesh_is_its_closed_form(scale):
+    """Points inside, on and outside a tessellated sphere of radius R: the distance is
+    ``|x| − R`` within the tessellation's sagitta (negative inside), at every scale of the
+    query (the sign from the rays' parity does not depend on how far the point is)."""
+    from voxnero.shape.proposals import outer_distance
+
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(500, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    r = rng.uniform(0.0, 2.0 * R, size=(500, 1)) * scale + (1 - scale) * R
+    pts = torch.from_numpy(d * r).float()
+    got = outer_distance(_sphere_mesh(), pts.reshape(25, 20, 3))
+    assert got.shape == (25, 20) and got.dtype == torch.float32
+    want = (pts.norm(dim=-1) - R).reshape(25, 20)
+    sagitta = R * (1 - np.cos(np.pi / 80))  # the chord's depth at resolution 80
+    assert float((got - want).abs().max()) < 2 * sagitta + 1e-4
+    far = want.abs() > 2 * sagitta
+    assert torch.equal(torch.sign(got[far]), torch.sign(want[far]))
+
+
+def test_closed_surface_closes_a_solid_at_the_grid_faces():
+    """A ball of radius 1.3 on a grid over [-1, 1]³ (32³) crosses every face of the grid: its
+    surface is closed there (watertight), and the signed distance inside is the distance to
+    the nearest face (the intersection of ball and cube), negative; the sampling sphere
+    (radius 1.2) clips it first."""
+    from types import SimpleNamespace
+
+    from voxnero.shape.proposals import closed_surface, outer_distance
+
+    bounds = torch.tensor([[-1.0] * 3, [1.0] * 3])
+    g = (grid_points(32, bounds).norm(dim=-1) - 1.3)[None]
+    sdf = SimpleNamespace(grid=g, bounds=bounds)
+    tr = SimpleNamespace(model=SimpleNamespace(sdf=sdf),
+                         cfg=SimpleNamespace(sampling=SimpleNamespace(radius=1.2)))
+    mesh = closed_surface(tr)
+    assert mesh.is_watertight()
+    pts = torch.tensor([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, -0.7, 0.2]])
+    d = outer_distance(mesh, pts)
+    voxel = 2.0 / 31
+    # the box grows by one voxel; the surface closes between the last corner and the pad
+    want = -(1.0 + 0.5 * voxel - pts.abs().max(dim=1).values)
+    assert torch.allclose(d, want, atol=0.6 * voxel), (d, want)
+
+
+def test_open_start_hollows_the_finished_surface_not_the_start_it_replaces():
+    """The edit measures the distance to the finished run's surface (a sphere mesh of radius
+    R) at the start grid's corners (33³ over [-0.8, 0.8]³, holding a larger ball, the hull):
+    the result is the opened shell of the ball of R within the tessellation's error, the
+    decision "open" counts the ball's corners inside before the hollowing, not the hull's, and
+    records the hold as steps (``hold`` of ``iters``)."""
     from types import SimpleNamespace
 
     from voxnero.shape.proposals import open_start
 
-    src_bounds = torch.tensor([[-1.0] * 3, [1.0] * 3])
-    src = (grid_points(41, src_bounds).norm(dim=-1) - R)[None]
     bounds = torch.tensor([[-0.8] * 3, [0.8] * 3])
     corners = grid_points(33, bounds)
     hull = (corners.norm(dim=-1) - 0.75)[None]
     sdf = SimpleNamespace(grid=torch.nn.Parameter(hull.clone()), bounds=bounds, voxel=0.05)
-    cfg = SimpleNamespace(grid=SimpleNamespace(bound=1.0), coarse=SimpleNamespace(res=41))
+    cfg = SimpleNamespace(grid=SimpleNamespace(bound=1.0), coarse=SimpleNamespace(res=41),
+                          iters=1500)
     tr = SimpleNamespace(model=SimpleNamespace(sdf=sdf), cfg=cfg, decisions=[])
     cap = _sphere_points(20000)
     cap = cap[cap[:, 2] > 0.7 * R]
-    open_start(cap, 1.0, (src, src_bounds))(tr)
+    open_start(cap, 1.0, 0.2, _sphere_mesh())(tr)
     tau = 1.0 * 2.0 / 40
     want = opened_shell((corners.norm(dim=-1) - R)[None], corners, cap, tau, 2 * tau + 0.05)
     err = (sdf.grid.detach() - want).abs()
-    assert float(err.max()) < 0.05 ** 2  # trilinear error of |x| on a 0.05 grid: ~h²/(8 R)
+    assert float(err.max()) < 2 * R * (1 - np.cos(np.pi / 80)) + 1e-4
     ev = tr.decisions[-1].evidence
     ball = int((corners.norm(dim=-1) < R).sum())
     assert abs(ev["inside_before"] - ball) <= 0.01 * ball < int((hull < 0).sum())
     assert ev["inside_after"] == int((sdf.grid < 0).sum()) < ev["inside_before"]
+    assert ev["hold_steps"] == 300
 
 
 class _PaintedModel(torch.nn.Module):
@@ -155,6 +208,7 @@ def test_propose_open_proposes_only_a_patch_painted_unlike_its_surroundings(monk
     p = _sphere_points()
     err = np.where(p[:, 2] > 0.8 * R, 0.06, 0.02)
     monkeypatch.setattr(proposals, "surface_error", lambda tr, b: (p, err))
+    monkeypatch.setattr(proposals, "closed_surface", lambda tr: _sphere_mesh())
     co = CoarseConfig(res=64, open_contrast=0.3)
 
     def trainer(lid: bool):

@@ -182,6 +182,37 @@ def test_sdf_lr_scales_with_voxel_at_upsampling(scene, tmp_path, per_voxel):
                                                        tr.opt.param_groups].index("sdf")]["params"][0]
 
 
+def test_opened_start_holds_its_sdf_for_the_decided_steps_and_after_a_resume(scene, tmp_path):
+    """The "open" decision's ``hold_steps`` (2): the SDF grid is bit-identical after steps 0
+    and 1 while the other parameters move, moves at step 2; a trainer resumed from the
+    checkpoint of step 1 holds it too (the hold is read from the saved decisions)."""
+    from voxnero.shape.adaptive import Decision
+
+    cfg = _cfg(6)
+    cfg.optim.warmup = 0
+    torch.manual_seed(0)
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
+    assert tr.sdf_hold == 0
+    tr.decisions.append(Decision("open", True, 1.5, "test", {"hold_steps": 2}, 0))
+    sdf0 = tr.model.sdf.grid.detach().clone()
+    rest0 = [p.detach().clone() for n, p in tr.model.named_parameters() if "sdf" not in n]
+    tr.train_step()
+    tr.step += 1
+    assert torch.equal(tr.model.sdf.grid.detach(), sdf0)
+    rest1 = [p.detach() for n, p in tr.model.named_parameters() if "sdf" not in n]
+    assert any(not torch.equal(a, b) for a, b in zip(rest0, rest1, strict=True))
+    tr.save_checkpoint()
+    again = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
+    assert again.load_checkpoint() and again.sdf_hold == 2 and again.step == 1
+    for t in (tr, again):
+        t.train_step()
+        t.step += 1
+        assert torch.equal(t.model.sdf.grid.detach(), sdf0)
+        t.train_step()
+        t.step += 1
+        assert not torch.equal(t.model.sdf.grid.detach(), sdf0)
+
+
 def _roughness(delta: torch.Tensor) -> float:
     """Energy of the discrete Laplacian of a ``(D, H, W)`` change over its own energy: 0 for a
     linear ramp, 144 (= 12²) for a voxel checkerboard."""
@@ -437,6 +468,18 @@ def test_coarse_start_proposes_its_opened_shell_and_keeps_the_better_fit(scene, 
     assert (tmp_path / "mesh.ply").is_file()
 
 
+def _finished_at_the_sphere(monkeypatch) -> None:
+    """Two steps after the coarse stage, the carved run's surface is a small blob: opened, it
+    would leave nothing. The race's logic is tested with the surface it would finish at, the
+    scene's sphere (radius 0.75 in the unit frame), as the opened start's source."""
+    import open3d as o3d
+
+    from voxnero.shape import proposals
+
+    monkeypatch.setattr(proposals, "closed_surface", lambda tr: (
+        o3d.geometry.TriangleMesh.create_sphere(radius=0.75, resolution=40)))
+
+
 def test_race_judges_the_opened_start_with_its_margin_and_records_a_kept_radius(
         scene, tmp_path, monkeypatch):
     """With fixed fits (``fit_psnr`` replaced): an opened start 0.05 dB above the carved one
@@ -447,7 +490,8 @@ def test_race_judges_the_opened_start_with_its_margin_and_records_a_kept_radius(
     monkeypatch.setattr(proposals, "MIN_PIXELS", 3)
     fits = {"coarse": 10.0, "coarse_open": 10.05, "r0.7": 20.0}
     monkeypatch.setattr(starts, "fit_psnr", lambda child: fits[child.out.name])
-    cfg = _coarse_cfg(250, iters=2)  # a hull at the sphere's radius: the opened shell has walls
+    _finished_at_the_sphere(monkeypatch)
+    cfg = _coarse_cfg(250, iters=2)
     cfg.coarse.race, cfg.coarse.open_worst, cfg.coarse.open_k = True, True, 1.0
     cfg.coarse.open_contrast = 0.0
     tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
@@ -489,7 +533,8 @@ def test_race_keeps_an_opened_start_only_with_the_carved_runs_genus(scene, tmp_p
         return genera[path.parent.name]
 
     monkeypatch.setattr(starts, "mesh_genus", fake_genus)
-    cfg = _coarse_cfg(250, iters=2)  # a hull at the sphere's radius: the opened shell has walls
+    _finished_at_the_sphere(monkeypatch)
+    cfg = _coarse_cfg(250, iters=2)
     cfg.coarse.race, cfg.coarse.open_worst, cfg.coarse.open_k = False, True, 1.0
     cfg.coarse.open_contrast = 0.0
     tr = ShapeTrainer(cfg, scene, tmp_path / "tunnel", progress=False, log=lambda s: None)

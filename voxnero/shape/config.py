@@ -121,7 +121,7 @@ class CoarseConfig:
         "update_smooth": Range(0.0, 16.0), "lr_sdf_factor": positive(1e3),
         "threshold": Range(0.0, 1.0, lo_open=True, hi_open=True),
         "bg_grow": at_least(0, 64), "bg_quantile": Range(0.0, 1.0),
-        "open_k": Range(1.0, 100.0), "open_shell": positive(64.0),
+        "open_k": Range(1.0, 100.0), "open_shell": positive(64.0), "open_hold": Range(0.0, 1.0),
         "open_margin": Range(0.0, 10.0), "open_contrast": Range(0.0, 1.0)}
 
     iters: int = 0
@@ -182,9 +182,15 @@ class CoarseConfig:
     (docs/STAGE1.md findings 44-46)."""
     open_k: float = 1.5
     """Error above this many times the surface's median marks the worst patch."""
-    open_shell: float = 2.0
+    open_shell: float = 1.5
     """Half the wall thickness of the opened start, in coarse voxels (the hollow start of
-    finding 42)."""
+    finding 42). 1.5: the bowl 1.81 px at 2 (genus 7), 1.24 at 1.5 (genus 0), 1.04 at 1
+    (genus 1) (docs/STAGE1.md finding 48)."""
+    open_hold: float = 0.2
+    """Fraction of ``iters`` during which the opened start's SDF is held still (learning rate
+    0) while its colour features, material and light form around the open shape: moved from
+    the first step, the bowl's rim grows a membrane by step 300 and the lid is back
+    (docs/STAGE1.md finding 48). 0 = none."""
     open_margin: float = 0.1
     """dB by which the opened start must fit better than the carved one to be kept: a
     solid object's opened start can tie (table_oak +0.008 dB, 0.63 -> 0.95 px) where an open

@@ -14,9 +14,10 @@ bowl 0.087 against 0.031; finding 44). So:
    surface;
 2. :func:`worst_patch`: the largest connected set of those cubes whose error, blurred over
    the neighbours, exceeds ``k`` times the surface's median;
-3. :func:`opened_shell`: the carved run's *finished* signed distance made a shell of
-   thickness ``2τ`` (``|h + τ| − τ``) and cut away within ``ρ`` of the patch, as the next
-   run's start (:func:`open_start`). Not the coarse hull's, the carved start itself: its
+3. :func:`opened_shell`: the signed distance to the carved run's *finished* surface
+   (:func:`outer_distance`) made a shell of thickness ``2τ`` (``|h + τ| − τ``) and cut away
+   within ``ρ`` of the patch, as the next run's start (:func:`open_start`), whose SDF is held
+   still while its appearance forms. Not the coarse hull's, the carved start itself: its
    voxel-scale roughness holes a thin shell (the mug's hollowed hull had genus 16, the bowl's
    37; the finished run's 10 and 0 after the same cut), and the mug's run from it ended with a
    tunnel too many in one run of two (finding 45).
@@ -208,24 +209,71 @@ def opened_shell(sdf: torch.Tensor, corners: torch.Tensor, patch: np.ndarray, ta
     return torch.maximum(shell, rho - dist)
 
 
-def open_start(patch: np.ndarray, shell_voxels: float,
-               source: tuple[torch.Tensor, torch.Tensor]):
+@torch.no_grad()
+def closed_surface(tr: ShapeTrainer):
+    """The largest component of ``tr``'s surface, closed: marching cubes of its SDF grid
+    clipped to the sampling sphere and padded with one empty voxel on every face, so that a
+    solid touching the grid's faces is closed there (:func:`outer_distance` takes its sign
+    from ray parity, which an open surface would scramble). An Open3D mesh, unit frame."""
+    import torch.nn.functional as F
+
+    from voxnero.mesh.cleanup import clean_mesh
+    from voxnero.mesh.extract import extract_mesh
+    from voxnero.shape.run_files import clip_to_sphere
+
+    sdf = tr.model.sdf
+    b = sdf.bounds.detach().cpu().float()
+    g = clip_to_sphere(sdf.grid.detach().cpu().float(), b, tr.cfg.sampling.radius)
+    n = torch.tensor(g.shape[-3:][::-1], dtype=torch.float32)  # samples along x, y, z
+    step = (b[1] - b[0]) / (n - 1)
+    g = F.pad(g, (1,) * 6, value=float(step.max()))
+    return clean_mesh(extract_mesh(g[0], torch.stack([b[0] - step, b[1] + step])))
+
+
+def outer_distance(mesh, points: torch.Tensor) -> torch.Tensor:
+    """Signed distance from ``points`` to a closed triangle mesh (negative inside), by Open3D's
+    ray casting: the nearest point of the mesh for the distance, the parity of 7 rays'
+    crossings for the sign (one ray that grazes an edge does not flip it).
+
+    The opened start hollows this, not the carved run's own field: under a lid the field is no
+    distance (on the bowl it rises to −0.0007 near the true floor's height, so ``|h + τ| − τ``
+    left a wall 0.45 thick there, docs/STAGE1.md finding 48).
+
+    Args:
+        mesh: Open3D legacy ``TriangleMesh``, closed, same frame as ``points``.
+        points: ``(..., 3)`` query points (any float dtype and device).
+
+    Returns:
+        ``(...)`` float32 distances on ``points``' device.
+    """
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    q = o3d.core.Tensor(points.detach().reshape(-1, 3).cpu().float().numpy())
+    d = scene.compute_signed_distance(q, nsamples=7).numpy()
+    return torch.from_numpy(d).reshape(points.shape[:-1]).to(points.device)
+
+
+def open_start(patch: np.ndarray, shell_voxels: float, hold: float, source):
     """An edit of a trainer's carved start (``ShapeTrainer.start_edit``): its SDF grid, just
-    set from the coarse hull, becomes :func:`opened_shell` of the finished carved run's field
-    ``source`` (sampled trilinearly at the grid's corners) with τ = ``shell_voxels`` coarse
-    voxels and ρ = 2τ plus one voxel of the SDF grid (the membrane left at the patch lies
-    within 2τ of it); the decision "open" records it. The coarse stage before it still gives
-    the run its env map and its box.
+    set from the coarse hull, becomes :func:`opened_shell` of the finished carved run's surface
+    ``source`` (its :func:`outer_distance` at the grid's corners) with τ = ``shell_voxels``
+    coarse voxels and ρ = 2τ plus one voxel of the SDF grid (the membrane left at the patch
+    lies within 2τ of it), and the SDF is held still for the first ``hold`` of the run (its
+    learning rate 0: the colour features, material and light form around the open shape before
+    it may move; without it the bowl's rim grows a membrane by step 300). The decision "open"
+    records both; the trainer reads the hold from it (:attr:`ShapeTrainer.sdf_hold`). The
+    coarse stage before it still gives the run its env map and its box.
 
     Args:
         patch: ``(P, 3)`` points of the surface to open (unit frame).
         shell_voxels: τ in voxels of the coarse grid.
-        source: the finished run's SDF grid ``(1, D, H, W)`` and its corners' bounds ``(2, 3)``.
+        hold: fraction of ``iters`` during which the SDF does not move.
+        source: the finished carved run's surface (:func:`closed_surface`).
     """
-    from voxnero.fields.grid import grid_points, grid_sample_points
-    from voxnero.shape import adaptive
-
-    src, src_bounds = source
+    from voxnero.fields.grid import grid_points
+    from voxnero.shape import adaptive, schedules
 
     def edit(tr: ShapeTrainer) -> None:
         g = tr.model.sdf
@@ -234,20 +282,20 @@ def open_start(patch: np.ndarray, shell_voxels: float,
         rho = 2.0 * tau + g.voxel
         start = g.grid.detach()
         corners = grid_points(start.shape[-1], g.bounds.cpu().float())
-        h = grid_sample_points(src, corners.reshape(-1, 3).to(src), src_bounds.to(src)
-                               ).t().reshape(start.shape).to(start)
+        h = outer_distance(source, corners).reshape(start.shape).to(start)
         n0 = int((h < 0).sum())
         f = opened_shell(h, corners, patch, tau, rho)
         n1 = int((f < 0).sum())
+        steps = schedules.at(hold, tr.cfg)
         with torch.no_grad():
             g.grid.copy_(f)
         tr.decisions.append(adaptive.Decision(
             "open", True, shell_voxels,
             f"the carved run's surface hollowed to walls {2 * tau:.3f} thick and opened "
             f"within {rho:.3f} of the {patch.shape[0]} surface cubes the carved run fitted worst "
-            f"({n0} -> {n1} grid corners inside)",
+            f"({n0} -> {n1} grid corners inside); the SDF held for {steps} steps",
             {"patch_points": int(patch.shape[0]), "tau": round(tau, 5), "rho": round(rho, 5),
-             "inside_before": n0, "inside_after": n1}, 0))
+             "inside_before": n0, "inside_after": n1, "hold_steps": steps}, 0))
 
     return edit
 
@@ -279,6 +327,4 @@ def propose_open(tr: ShapeTrainer, co) -> tuple:
            f"({seconds:.0f} s)")
     if patch.shape[0] == 0 or contrast["contrast"] < co.open_contrast:
         return None, evidence
-    source = (tr.model.sdf.grid.detach().cpu().clone(),
-              tr.model.sdf.bounds.detach().cpu().float().clone())
-    return open_start(patch, co.open_shell, source), evidence
+    return open_start(patch, co.open_shell, co.open_hold, closed_surface(tr)), evidence

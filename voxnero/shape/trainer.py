@@ -105,6 +105,14 @@ class ShapeTrainer:
             if te.depth is not None and te.masks is not None:
                 self.eval_split = te
 
+    @property
+    def sdf_hold(self) -> int:
+        """Steps from the start during which the SDF does not move (learning rate 0): the
+        "open" decision's ``hold_steps`` (:func:`voxnero.shape.proposals.open_start`), else 0.
+        Read from the decisions, so a resumed run keeps it."""
+        return next((int(d.evidence.get("hold_steps", 0)) for d in self.decisions
+                     if d.name == "open"), 0)
+
     def make_optimizer(self) -> torch.optim.Adam:
         """Adam over the model's parameter groups (one per learning rate)."""
         return torch.optim.Adam(self.model.param_groups(self.cfg), betas=(0.9, 0.99), eps=1e-15)
@@ -181,6 +189,8 @@ class ShapeTrainer:
         s, lrf = schedules.sharpness(cfg, step), schedules.lr_factor(cfg, step)
         for g in self.opt.param_groups:
             g["lr"] = g.setdefault("base_lr", g["lr"]) * lrf
+            if step < self.sdf_hold and g.get("name") == "sdf":
+                g["lr"] = 0.0
         light_switch.maybe_decide_occlusion(self)
         o, d, target, cam = self.train_batch(cfg.sampling.rays)
         m.env.prepare()
