@@ -515,6 +515,69 @@ def test_race_judges_the_opened_start_with_its_margin_and_records_a_kept_radius(
     assert not (tmp_path / "gated" / "starts" / "coarse_open").exists()
 
 
+@pytest.mark.parametrize("opened_contrast,fit,tied", [
+    (0.1, 9.85, True),  # worse by 0.15 (within open_tie 0.25), one material
+    (0.1, 10.05, True),  # better, but by less than open_margin 0.1: a tie too
+    (0.5, 9.85, False),  # within the tie, but its worst patch is painted too
+    (0.1, 9.6, False),  # one material, but worse by 0.4: no tie (nothing measured)
+    (0.1, 10.2, False),  # better by more than the margin: judged by the margin, not here
+])
+def test_an_opened_start_ties_within_open_tie_with_one_material(monkeypatch, opened_contrast,
+                                                                fit, tied):
+    """:func:`starts.tied_with_one_material` against a carved fit of 10 dB: a tie needs the
+    fit within [10 − ``open_tie``, 10 + ``open_margin``] and the opened run's own worst patch
+    painted like its surroundings (contrast < ``open_contrast`` 0.3); the measurement is
+    taken (and recorded) only for a fit in that range; ``open_tie`` 0 turns it off."""
+    from voxnero.shape import proposals
+    from voxnero.shape.config import CoarseConfig
+
+    calls = []
+
+    def evidence(tr, co):
+        calls.append(tr)
+        return np.zeros((1, 3)), {"material": {"contrast": opened_contrast}, "seconds": 1.0}
+
+    monkeypatch.setattr(proposals, "worst_patch_evidence", evidence)
+    co = CoarseConfig(open_tie=0.25, open_margin=0.1, open_contrast=0.3)
+    ev: dict = {}
+    assert starts.tied_with_one_material("opened", fit, 10.0, co, ev) is tied
+    in_range = 9.75 <= fit <= 10.1
+    assert calls == (["opened"] if in_range else [])
+    assert ("opened" in ev) is in_range
+    assert not starts.tied_with_one_material("opened", 9.9, 10.0,
+                                             CoarseConfig(open_tie=0.0), {})
+
+
+def test_race_keeps_an_opened_start_that_ties_with_one_material(scene, tmp_path, monkeypatch):
+    """In the race: the opened start fitting 0.15 dB worse than the carved one, its worst
+    patch painted like its surroundings (contrast 0.1; the carved run's 0.6), is kept, and
+    the decision says so and records the measurement."""
+    from voxnero.shape import proposals
+
+    _finished_at_the_sphere(monkeypatch)
+    cap = np.random.default_rng(0).normal(size=(2000, 3))
+    cap = 0.75 * cap / np.linalg.norm(cap, axis=1, keepdims=True)
+    cap = cap[cap[:, 2] > 0.6]
+
+    def evidence(tr, co):
+        c = 0.6 if tr.out.name == "coarse" else 0.1
+        return cap, {"surface_cubes": 100, "patch_cubes": len(cap), "median_error": 0.02,
+                     "seconds": 1.0, "material": {"contrast": c}, "min_contrast": 0.3}
+
+    monkeypatch.setattr(proposals, "worst_patch_evidence", evidence)
+    fits = {"coarse": 10.0, "coarse_open": 9.85}
+    monkeypatch.setattr(starts, "fit_psnr", lambda child: fits[child.out.name])
+    monkeypatch.setattr(starts, "mesh_genus", lambda path: 0)
+    cfg = _coarse_cfg(250, iters=2)
+    cfg.coarse.race, cfg.coarse.open_worst, cfg.coarse.open_tie = False, True, 0.25
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
+    tr.run()
+    dec = json.loads((tmp_path / "decisions.json").read_text())["start"]
+    assert dec["value"] == "coarse_open"
+    assert "within 0.25 dB with one material" in dec["reason"]
+    assert dec["evidence"]["open"]["opened"]["material"]["contrast"] == 0.1
+
+
 def test_race_keeps_an_opened_start_only_with_the_carved_runs_genus(scene, tmp_path,
                                                                      monkeypatch):
     """An opened start that fits far better but ends with another genus than the carved run

@@ -122,7 +122,8 @@ class CoarseConfig:
         "threshold": Range(0.0, 1.0, lo_open=True, hi_open=True),
         "bg_grow": at_least(0, 64), "bg_quantile": Range(0.0, 1.0),
         "open_k": Range(1.0, 100.0), "open_shell": positive(64.0), "open_hold": Range(0.0, 1.0),
-        "open_margin": Range(0.0, 10.0), "open_contrast": Range(0.0, 1.0)}
+        "open_margin": Range(0.0, 10.0), "open_tie": Range(0.0, 10.0),
+        "open_contrast": Range(0.0, 1.0)}
 
     iters: int = 0
     """Steps of the coarse stage; 0 = off (the SDF starts from the sphere ``grid.init_radius``
@@ -195,6 +196,11 @@ class CoarseConfig:
     """dB by which the opened start must fit better than the carved one to be kept: a
     solid object's opened start can tie (table_oak +0.008 dB, 0.63 -> 0.95 px) where an open
     cavity wins clearly (mug_glaze +0.28 dB, 1.92 -> 1.08 px; docs/STAGE1.md finding 44)."""
+    open_tie: float = 0.25
+    """dB within which an opened start that fits worse than the carved one still ties with
+    it, and is kept if its own worst-fitted patch is painted like the surface around it (one
+    material where the carved run needed a painted lid:
+    :func:`voxnero.shape.starts.tied_with_one_material`). 0 = off."""
     open_contrast: float = 0.3
     """The opened start is run only if the model's material on the worst patch differs from
     the ring of surface around it by at least this much (largest absolute difference of the

@@ -317,6 +317,26 @@ def mesh_genus(path: Path) -> int | None:
     return mesh_topology(path)[0]
 
 
+def tied_with_one_material(opened: ShapeTrainer, fit: float, carved: float, co,
+                           evidence: dict) -> bool:
+    """Whether the opened start's finished run ``opened`` (fit ``fit`` dB) ties with the carved
+    one (``carved`` dB) as the simpler surface: it fits at most ``co.open_margin`` better and
+    at most ``co.open_tie`` worse, and its own worst-fitted patch is painted like the surface
+    around it (material contrast below ``co.open_contrast``, where the carved run's lid was
+    above it: :func:`voxnero.shape.proposals.worst_patch_evidence`). On a concave mirror the
+    photos hardly tell the lid from the cavity (the bowl started from its true surface fits
+    0.12 dB better than its lid, docs/STAGE1.md finding 42); a lid needs a second material
+    to explain them, the open surface does not. The measurement joins ``evidence["opened"]``.
+    """
+    if not (co.open_tie > 0 and carved - co.open_tie <= fit <= carved + co.open_margin):
+        return False
+    from voxnero.shape import proposals
+
+    _, own = proposals.worst_patch_evidence(opened, co)
+    evidence["opened"] = own
+    return own["material"]["contrast"] < co.open_contrast
+
+
 def race(tr: ShapeTrainer) -> Path:
     """Race the starts of ``tr``'s config (as given, ``tr.cfg_in``); ``tr`` becomes the winner.
 
@@ -436,7 +456,15 @@ def race(tr: ShapeTrainer) -> Path:
                       for k in (len(runs) - 2, len(runs) - 1)]
             proposal["genus"] = genera
             if genera[0] is not None and genera[1] == genera[0]:
-                judge(fit, co.open_margin)
+                if tied_with_one_material(runs[-1][2], fit, runs[-2][1], co, proposal):
+                    seconds += proposal["opened"]["seconds"]
+                    best_k = len(runs) - 1
+                    tr.log(f"[shape] start coarse_open: {fit:.2f} dB against the carved "
+                           f"start's {runs[-2][1]:.2f}, within {co.open_tie:g} dB, and one "
+                           "material where it fits worst: the simpler surface, kept")
+                    keep_only(best_k)
+                else:
+                    judge(fit, co.open_margin)
             else:
                 tr.log(f"[shape] start coarse_open: genus {genera[1]} against the carved "
                        f"start's {genera[0]}: not kept")
@@ -456,6 +484,8 @@ def race(tr: ShapeTrainer) -> Path:
         f"best fit of {len(entries)} complete runs to {tr.cfg.fit_rays} fixed training rays "
         f"(another start must beat {first} by {g.init_margin:g} dB"
         + (f", the opened one by {co.open_margin:g} dB with the carved one's genus"
+           + (f", or within {co.open_tie:g} dB with one material where it fits worst"
+              if co.open_tie > 0 else "")
            if "coarse_open" in names else "") + "): "
         + ", ".join(f"{nm}: {runs[i][1]:.2f} dB" for i, nm in enumerate(names)),
         evidence, tr.cfg.iters)]
