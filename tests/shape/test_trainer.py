@@ -568,7 +568,7 @@ def test_race_keeps_an_opened_start_that_ties_with_one_material(scene, tmp_path,
     fits = {"coarse": 10.0, "coarse_open": 9.85}
     monkeypatch.setattr(starts, "fit_psnr", lambda child: fits[child.out.name])
     monkeypatch.setattr(starts, "mesh_genus", lambda path: 0)
-    cfg = _coarse_cfg(250, iters=2)
+    cfg = _coarse_cfg(40, iters=2)  # the geometry is given: a short coarse stage
     cfg.coarse.race, cfg.coarse.open_worst, cfg.coarse.open_tie = False, True, 0.25
     tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
     tr.run()

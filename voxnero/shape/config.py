@@ -186,12 +186,12 @@ class CoarseConfig:
     open_shell: float = 1.5
     """Half the wall thickness of the opened start, in coarse voxels (the hollow start of
     finding 42). 1.5: the bowl 1.81 px at 2 (genus 7), 1.24 at 1.5 (genus 0), 1.04 at 1
-    (genus 1) (docs/STAGE1.md finding 48)."""
+    (genus 1) (docs/STAGE1.md findings 47-48)."""
     open_hold: float = 0.2
     """Fraction of ``iters`` during which the opened start's SDF is held still (learning rate
     0) while its colour features, material and light form around the open shape: moved from
     the first step, the bowl's rim grows a membrane by step 300 and the lid is back
-    (docs/STAGE1.md finding 48). 0 = none."""
+    (docs/STAGE1.md findings 47-48). 0 = none."""
     open_margin: float = 0.1
     """dB by which the opened start must fit better than the carved one to be kept: a
     solid object's opened start can tie (table_oak +0.008 dB, 0.63 -> 0.95 px) where an open

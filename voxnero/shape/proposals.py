@@ -237,7 +237,7 @@ def outer_distance(mesh, points: torch.Tensor) -> torch.Tensor:
 
     The opened start hollows this, not the carved run's own field: under a lid the field is no
     distance (on the bowl it rises to −0.0007 near the true floor's height, so ``|h + τ| − τ``
-    left a wall 0.45 thick there, docs/STAGE1.md finding 48).
+    left a wall 0.45 thick there, docs/STAGE1.md finding 47).
 
     Args:
         mesh: Open3D legacy ``TriangleMesh``, closed, same frame as ``points``.
