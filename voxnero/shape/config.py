@@ -178,9 +178,9 @@ class CoarseConfig:
     around it (``open_contrast``: a lid, not an edge), so a solid object costs the error map
     alone (13-37 s). Off here (`preview`'s fits do not tell an open cavity from the lid,
     finding 28, and its 4 minutes hold no third run); on in `standard` and `quality`: on the
-    corpus it runs for the mug and the bowl alone and opens the mug (1.96 -> 0.95 px, normal
-    error 12.2 -> 5.1 deg); the bowl's opened start fits worse and the carved one stays
-    (docs/STAGE1.md findings 44-46)."""
+    corpus it runs for the mug and the bowl alone and opens the mug (1.96 -> 0.82 px, normal
+    error 12.2 -> 4.5 deg) and, by ``open_tie``, the bowl (2.34 -> 1.22 px) (docs/STAGE1.md
+    findings 44-48)."""
     open_k: float = 1.5
     """Error above this many times the surface's median marks the worst patch."""
     open_shell: float = 1.5
