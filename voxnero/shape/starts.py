@@ -456,8 +456,9 @@ def race(tr: ShapeTrainer) -> Path:
                       for k in (len(runs) - 2, len(runs) - 1)]
             proposal["genus"] = genera
             if genera[0] is not None and genera[1] == genera[0]:
-                if tied_with_one_material(runs[-1][2], fit, runs[-2][1], co, proposal):
-                    seconds += proposal["opened"]["seconds"]
+                tied = tied_with_one_material(runs[-1][2], fit, runs[-2][1], co, proposal)
+                seconds += proposal.get("opened", {}).get("seconds", 0.0)  # measured or not
+                if tied:
                     best_k = len(runs) - 1
                     tr.log(f"[shape] start coarse_open: {fit:.2f} dB against the carved "
                            f"start's {runs[-2][1]:.2f}, within {co.open_tie:g} dB, and one "

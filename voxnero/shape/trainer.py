@@ -187,9 +187,10 @@ class ShapeTrainer:
         if res != m.sdf.res:
             self.set_resolution(res)
         s, lrf = schedules.sharpness(cfg, step), schedules.lr_factor(cfg, step)
+        held = step < self.sdf_hold
         for g in self.opt.param_groups:
             g["lr"] = g.setdefault("base_lr", g["lr"]) * lrf
-            if step < self.sdf_hold and g.get("name") == "sdf":
+            if held and g.get("name") == "sdf":
                 g["lr"] = 0.0
         light_switch.maybe_decide_occlusion(self)
         o, d, target, cam = self.train_batch(cfg.sampling.rays)
