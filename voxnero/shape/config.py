@@ -553,7 +553,10 @@ class ShapeConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     mesh_res: int = 192
-    """Resolution of the grid resampling used for the final marching cubes."""
+    """Resolution of the grid resampling used for the final marching cubes; where that mesh's
+    genus differs from the field refined by 2 (``2·(n − 1) + 1`` samples, a resampling that
+    opened or closed a handle at a pinched wall), the refined mesh is written instead
+    (:func:`voxnero.shape.run_files.final_mesh`)."""
     eval_mesh_res: int = 0
     """Marching-cubes resolution of the periodic Chamfer evaluations (0 = the grid's own)."""
     fit_rays: int = 16384
