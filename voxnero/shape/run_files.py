@@ -284,9 +284,9 @@ def final_mesh(model: ShapeModel, res: int, radius: float | None = None):
     values in an empty 8³ grid) the genus that a refinement by 16 converges to is matched by
     the refinement by 2 in 107, by the lattice itself in 100 and by 1.5× in 50
     (tests/shape/test_final_mesh.py checks cases). So the refined genus is the reference, and
-    the refined mesh is written where the ``res`` mesh's genus differs. Both genera are of the largest component
-    (:func:`voxnero.mesh.topology.mesh_topology`); an undefined one (not a closed manifold)
-    keeps the ``res`` mesh.
+    the refined mesh is written where the ``res`` mesh's genus differs. Both genera are of the
+    largest component (:func:`voxnero.mesh.topology.mesh_topology`); an undefined one (not a
+    closed manifold) keeps the ``res`` mesh.
 
     Args:
         model: the trained model (its ``sdf`` grid, ``(1, n, n, n)``, unit frame).
@@ -379,8 +379,8 @@ def write_outputs(tr: ShapeTrainer) -> Path:
     mesh, topo = final_mesh(tr.model, tr.cfg.mesh_res, tr.cfg.sampling.radius)
     if topo["mesh_res"] != tr.cfg.mesh_res:
         tr.log(f"[shape] the mesh at {tr.cfg.mesh_res}^3 has genus {topo['genus'][0]}, the "
-               f"field refined by 2 ({topo['mesh_res']}^3) genus {topo['genus'][1]}: a "
-               "resampling pinhole; written at the refined resolution")
+               f"field refined by 2 ({topo['mesh_res']}^3) genus {topo['genus'][1]}: a handle "
+               "the resampling opened or closed; written at the refined resolution")
     set_mesh_normals(tr.model, mesh)
     path = save_mesh(out / "mesh.ply", mesh, tr.scene.norm)
     g = tr.model.sdf
