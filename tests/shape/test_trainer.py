@@ -384,6 +384,7 @@ def test_coarse_start_coarse_to_fine_sdf(scene, tmp_path):
     torch.manual_seed(0)
     cfg = _coarse_cfg(250, iters=10)
     cfg.coarse.sdf_first, cfg.coarse.sdf_upsample_at = 0.5, 0.3  # 48^3 after 24^3
+    cfg.grid.res = [16, 32]  # the sphere starts' schedule: not this start's, and the log says so
     seen: list[tuple[int, int, float]] = []
     orig = ShapeTrainer.train_step
 
@@ -403,6 +404,8 @@ def test_coarse_start_coarse_to_fine_sdf(scene, tmp_path):
     first, last = tr.cfg.grid.res  # sdf_res capped by the pixel footprint over the fitted box
     assert first == 24 and 24 < last <= 48
     assert res[:3] == [24, 24, 24] and res[-1] == last
+    dec = json.loads((tmp_path / "decisions.json").read_text())["grid_res"]
+    assert "coarse.sdf_res = 48" in dec["reason"] and "grid.res [16, 32]" in dec["reason"]
     k = res.index(last)
     assert abs(seen[k][0] - schedules.at(0.3, tr.cfg)) <= 1  # within the step that upsamples
     # the step in voxels does not change with the upsampling (lr per voxel: res, not res - 1)

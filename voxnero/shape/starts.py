@@ -275,6 +275,13 @@ def fit_grid_to_box(tr: ShapeTrainer, box: torch.Tensor, sdf: torch.Tensor,
         cfg_in.grid.res, sc.coarse, sc.fine, sc.coarse_keep, half, fp, cfg_in.grid.res_auto)
     tr.cfg.grid.res = res
     tr.cfg.sampling.coarse, tr.cfg.sampling.fine, tr.cfg.sampling.coarse_keep = c, f, k
+    co = tr.cfg_in.coarse
+    # a user who set grid.res learns here that it does not shape this start's grid
+    dec.reason += (f"; a carved start's grid is coarse.sdf_res = {co.sdf_res}, first at "
+                   f"coarse.sdf_first = {co.sdf_first:g} of it: grid.res "
+                   f"{list(tr.cfg_in.grid.res)} is the sphere starts' schedule (here its first "
+                   "grid only sets the SDF step per voxel)")
+    dec.evidence["from"] = "coarse.sdf_res"
     tr.decisions = [d for d in tr.decisions if d.name != "grid_res"] + [dec]
     r0 = schedules.grid_res(tr.cfg, tr.step)
     pts = grid_points(r0, box.to(sdf))
