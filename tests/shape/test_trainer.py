@@ -298,6 +298,65 @@ def test_race_of_roughness_starts_from_the_kept_radius(scene, tmp_path):
     assert json.loads((tmp_path / "shape.json").read_text())["init_roughness"] == kept
 
 
+def test_race_cut_stops_a_start_far_behind_at_its_halfway_and_resumes_there(scene, tmp_path):
+    """``race_cut``: the small sphere r = 0.15, far behind the finished r = 0.7 at half its
+    steps, stops there with its checkpoint and no mesh; it loses, the decision names where it
+    stopped, and a re-run trains nothing and judges it again from its checkpoint."""
+    cfg = _cfg(40)
+    cfg.grid.init_radius, cfg.grid.init_candidates = 0.7, [0.15]
+    cfg.race_cut = 0.5
+    lines: list[str] = []
+    tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lines.append)
+    path = tr.run()
+    dec = json.loads((tmp_path / "decisions.json").read_text())["init_radius"]
+    assert dec["value"] == 0.7
+    cut = dec["evidence"]["cut"]["r0.15"]
+    assert cut["step"] == 20 and cut["stopped"] and cut["best"] - cut["fit"] > 0.5, cut
+    assert dec["evidence"]["psnr"][1] == cut["fit"]
+    assert "r=0.15: " in dec["reason"] and "(stopped at step 20," in dec["reason"]
+    assert not (tmp_path / "starts" / "r0.15" / "mesh.ply").exists()
+    assert torch.load(tmp_path / "starts" / "r0.15" / CKPT, weights_only=False)["step"] == 20
+    assert path.read_bytes() == (tmp_path / "starts" / "r0.7" / "mesh.ply").read_bytes()
+    assert tr.step == 60  # 40 + the stopped start's 20
+    assert any("more than race_cut = 0.5 dB: stopped" in x for x in lines)
+    counted = {"n": 0}
+    orig = ShapeTrainer.train_step
+
+    def counting(self):
+        counted["n"] += 1
+        return orig(self)
+
+    ShapeTrainer.train_step = counting
+    try:
+        again = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
+        again.run()
+    finally:
+        ShapeTrainer.train_step = orig
+    assert counted["n"] == 0 and again.step == 60
+    dec2 = json.loads((tmp_path / "decisions.json").read_text())["init_radius"]
+    assert dec2["evidence"]["cut"] == dec["evidence"]["cut"]
+
+
+def test_race_cut_judging_a_start_that_goes_on_changes_nothing(scene, tmp_path):
+    """A start within ``race_cut`` of the best goes on, and trains exactly as without the cut:
+    measuring its halfway fit draws nothing from the run's generators (its mesh is the same
+    byte for byte)."""
+    meshes = {}
+    for cut in (0.0, 100.0):
+        cfg = _cfg(30)
+        cfg.grid.init_radius, cfg.grid.init_candidates = 0.15, [0.7]
+        cfg.race_cut = cut
+        out = tmp_path / f"cut{cut:g}"
+        lines: list[str] = []
+        ShapeTrainer(cfg, scene, out, progress=False, log=lines.append).run()
+        judged = [x for x in lines if "race_cut = " in x]
+        assert len(judged) == (1 if cut else 0) and (not cut or "it goes on" in judged[0])
+        assert "cut" not in json.loads((out / "decisions.json").read_text())["init_radius"][
+            "evidence"]
+        meshes[cut] = (out / "starts" / "r0.7" / "mesh.ply").read_bytes()
+    assert meshes[0.0] == meshes[100.0]
+
+
 def test_roughness_candidates_below_the_head_minimum_are_refused():
     """A starting roughness the material head cannot output: a clear error with the fix."""
     from voxnero.errors import ConfigError

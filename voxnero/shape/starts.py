@@ -316,6 +316,34 @@ def fit_psnr(tr: ShapeTrainer, chunk: int = 8192) -> float:
     return losses.psnr(rgb, target)
 
 
+def _cut_note(cut: dict | None) -> str:
+    """A stopped start's note in a race decision's reason ('' for a finished one)."""
+    if cut is None:
+        return ""
+    return f" (stopped at step {cut['step']}, {cut['best'] - cut['fit']:.2f} dB behind)"
+
+
+def cut_behind(tr: ShapeTrainer) -> bool:
+    """Whether a later start of a race stops now: at ``race_cut_at`` of its steps, its fit on
+    the ``fit_rays`` pixels (:func:`fit_psnr`) is more than ``race_cut`` dB behind the race's
+    best finished start (``tr.race_best``). Judged once, at that step (again on a resume that
+    starts there: the fit is deterministic); the judgement goes to ``tr.cut`` and the log.
+    Measuring the fit draws nothing from the run's generators, so a start that goes on trains
+    exactly as without the cut."""
+    cfg = tr.cfg
+    if tr.race_best is None or cfg.race_cut <= 0 or tr.step != round(cfg.race_cut_at * cfg.iters):
+        return False
+    fit = fit_psnr(tr)
+    behind = tr.race_best - fit
+    stop = behind > cfg.race_cut
+    tr.cut = {"step": tr.step, "fit": round(fit, 3), "best": tr.race_best, "stopped": stop}
+    tr.log(f"[shape] at step {tr.step} of {cfg.iters}: fit {fit:.2f} dB, {behind:.2f} dB behind "
+           f"the best finished start ({tr.race_best:.2f}); "
+           + (f"more than race_cut = {cfg.race_cut:g} dB: stopped, it loses the race"
+              if stop else f"within race_cut = {cfg.race_cut:g} dB: it goes on"))
+    return stop
+
+
 def mesh_genus(path: Path) -> int | None:
     """Genus of the largest component of the mesh file at ``path`` (None: not a closed
     2-manifold), :func:`voxnero.mesh.topology.mesh_topology`."""
@@ -376,6 +404,7 @@ def race(tr: ShapeTrainer) -> Path:
     runs: list[tuple[str, float, ShapeTrainer | None]] = []  # (folder name, fit, trainer)
     measured: list[adaptive.Decision] = []  # the coarse start's "auto" exposure decision
     seconds, steps = 0.0, 0
+    cuts: dict[str, dict] = {}  # the starts stopped behind (race_cut): folder name -> judgement
 
     def start(radius: float | None, rough: float | None, k: int, n: int,
               edit: Callable[[ShapeTrainer], None] | None = None) -> float:
@@ -409,13 +438,21 @@ def race(tr: ShapeTrainer) -> Path:
                 adaptive.Decision("exposure", taken.value, lc.exposure,
                                   "the coarse start's measurement: " + taken.reason,
                                   taken.evidence, 0)]
+        if runs:
+            child.race_best = runs[best_k][1]
         child.run()
         if radius is None and not measured:
             measured.extend(x for x in child.decisions if x.name == "exposure")
-        fit = fit_psnr(child)
         seconds += child.train_time
         steps += child.step
-        tr.log(f"[shape] start {name}: final fit {fit:.2f} dB ({child.train_time:.0f} s)")
+        if child.cut is not None and child.cut["stopped"]:
+            fit = child.cut["fit"]
+            cuts[name] = child.cut
+            tr.log(f"[shape] start {name}: stopped at step {child.step} of {child.cfg.iters} "
+                   f"at {fit:.2f} dB ({child.train_time:.0f} s)")
+        else:
+            fit = fit_psnr(child)
+            tr.log(f"[shape] start {name}: final fit {fit:.2f} dB ({child.train_time:.0f} s)")
         runs.append((name, round(fit, 3), child))
         return fit
 
@@ -435,7 +472,7 @@ def race(tr: ShapeTrainer) -> Path:
         k = len(runs) - 1
         if margin is None:
             margin = g.init_margin if best_k == 0 else 0.0
-        if k > 0 and fit > runs[best_k][1] + margin:
+        if k > 0 and runs[k][0] not in cuts and fit > runs[best_k][1] + margin:
             best_k = k
         keep_only(best_k)
 
@@ -457,6 +494,9 @@ def race(tr: ShapeTrainer) -> Path:
         if radius is None and opening and edit is not None:
             fit = start(None, None, len(runs) + 1, n, edit)
             entries.append(("coarse_open", None, edit))
+            if runs[-1][0] in cuts:  # stopped behind: no mesh, it loses
+                keep_only(best_k)
+                continue
             # opening a cavity's lid adds no tunnel: a run that ends with another genus than
             # the carved one's made one (a shell's wall holed), whatever its fit
             genera = [mesh_genus(tr.out / "starts" / runs[k][0] / "mesh.ply")
@@ -485,6 +525,8 @@ def race(tr: ShapeTrainer) -> Path:
                 "trial_steps": tr.cfg.iters}
     if opening:
         evidence["open"] = proposal
+    if cuts:
+        evidence["cut"] = {nm: c for nm, c in cuts.items()}
     decisions = [adaptive.Decision(
         "start" if co.iters > 0 else "init_radius",
         kept_name if kept_radius is None else kept_radius,
@@ -495,14 +537,15 @@ def race(tr: ShapeTrainer) -> Path:
            + (f", or within {co.open_tie:g} dB with one material where it fits worst"
               if co.open_tie > 0 else "")
            if "coarse_open" in names else "") + "): "
-        + ", ".join(f"{nm}: {runs[i][1]:.2f} dB" for i, nm in enumerate(names)),
+        + ", ".join(f"{nm}: {runs[i][1]:.2f} dB" + _cut_note(cuts.get(runs[i][0]))
+                    for i, nm in enumerate(names)),
         evidence, tr.cfg.iters)]
     if roughs:
         n0 = len(entries)
         for j, rough in enumerate(roughs):
             k = n0 + j
             fit = start(kept_radius, rough, k + 1, n, kept_edit)
-            if fit > runs[best_k][1]:
+            if runs[k][0] not in cuts and fit > runs[best_k][1]:
                 best_k = k
             keep_only(best_k)
         values = [lc.init_roughness] + roughs
@@ -512,7 +555,9 @@ def race(tr: ShapeTrainer) -> Path:
             "init_roughness", kept, values,
             f"best fit of {len(values)} complete runs from {names[k_radius]} "
             f"({tr.cfg.fit_rays} fixed training rays): "
-            + ", ".join(f"{v:g}: {p:.2f} dB" for v, p in zip(values, fits, strict=True)),
+            + ", ".join(f"{v:g}: {p:.2f} dB" + _cut_note(cuts.get(runs[k][0]))
+                        for v, p, k in zip(values, fits, [k_radius, *range(n0, n0 + len(roughs))],
+                                           strict=True)),
             {"values": values, "psnr": fits, "radius": kept_radius}, tr.cfg.iters))
     name, _, win = runs[best_k]
     assert win is not None

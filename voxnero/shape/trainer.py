@@ -98,6 +98,11 @@ class ShapeTrainer:
         self.start_edit: Callable[[ShapeTrainer], None] | None = None
         """Applied to the SDF right after the coarse start (a race's proposal,
         :func:`voxnero.shape.proposals.open_start`); not on resume."""
+        self.race_best: float | None = None
+        """A race's best finished fit (dB) when this run is one of its later starts: the run
+        stops behind it (``race_cut``, :func:`voxnero.shape.starts.cut_behind`)."""
+        self.cut: dict | None = None
+        """Where ``race_cut`` was judged: step, fit, best, stopped (None: not judged)."""
         self.occ_targets: OcclusionTargets | None = None
         self.eval_split = None
         if "test" in getattr(scene, "splits", {}):
@@ -254,9 +259,11 @@ class ShapeTrainer:
                 f"{self.cfg.sampling.rays}) or a degenerate scene (no pixel sees the object)")
 
     # ------------------------------------------------------------------ loop
-    def run(self) -> Path:
+    def run(self) -> Path | None:
         """Train (resuming if a checkpoint exists) and write the outputs; returns mesh path.
-        With several starts, :func:`voxnero.shape.starts.race` runs one complete run each."""
+        With several starts, :func:`voxnero.shape.starts.race` runs one complete run each; a
+        start of it that falls too far behind (``race_cut``) stops with its checkpoint and no
+        outputs, and returns None."""
         from tqdm import tqdm
 
         cfg = self.cfg
@@ -279,6 +286,8 @@ class ShapeTrainer:
         with open(self.out / "log.jsonl", "a") as fh, GracefulStop() as stop:
             try:
                 while self.step < cfg.iters:
+                    if starts.cut_behind(self):
+                        break
                     t0 = time.perf_counter()
                     rec = self.train_step()
                     self.guard.update(math.isfinite(rec["loss"]), self.step,
@@ -304,4 +313,6 @@ class ShapeTrainer:
                 raise
         bar.close()
         self.save_checkpoint()
+        if self.cut is not None and self.cut["stopped"]:
+            return None
         return run_files.write_outputs(self)
