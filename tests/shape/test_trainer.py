@@ -313,7 +313,7 @@ def test_race_cut_stops_a_start_far_behind_at_its_halfway_and_resumes_there(scen
     cut = dec["evidence"]["cut"]["r0.15"]
     assert cut["step"] == 20 and cut["stopped"] and cut["best"] - cut["fit"] > 0.5, cut
     assert dec["evidence"]["psnr"][1] == cut["fit"]
-    assert "r=0.15: " in dec["reason"] and "(stopped at step 20," in dec["reason"]
+    assert "best fit of 2 runs" in dec["reason"] and "(stopped at step 20," in dec["reason"]
     assert not (tmp_path / "starts" / "r0.15" / "mesh.ply").exists()
     assert torch.load(tmp_path / "starts" / "r0.15" / CKPT, weights_only=False)["step"] == 20
     assert path.read_bytes() == (tmp_path / "starts" / "r0.7" / "mesh.ply").read_bytes()

@@ -4,7 +4,9 @@ Where the SDF starts matters for mirrors (a mirror barely moves from where it st
 the roughness starts matters for how a mirror's surface settles (docs/STAGE1.md, findings 10, 13
 to 15). With ``grid.init_candidates`` or ``light.init_roughness_candidates`` the program trains
 one complete run per start in ``starts/<name>/`` and keeps the one whose final model fits the
-photos best (:func:`fit_psnr`). Each start is an ordinary
+photos best (:func:`fit_psnr`); with ``race_cut`` a start far behind the best finished one
+at ``race_cut_at`` of its steps stops there and loses (:func:`cut_behind`). Each start is an
+ordinary
 :class:`~voxnero.shape.trainer.ShapeTrainer` run with its own checkpoints: re-running the
 command resumes the unfinished start and skips the finished ones.
 """
@@ -316,6 +318,11 @@ def fit_psnr(tr: ShapeTrainer, chunk: int = 8192) -> float:
     return losses.psnr(rgb, target)
 
 
+def _runs_word(cuts: dict) -> str:
+    """'complete runs', or 'runs' when some start stopped behind (``race_cut``)."""
+    return "runs" if cuts else "complete runs"
+
+
 def _cut_note(cut: dict | None) -> str:
     """A stopped start's note in a race decision's reason ('' for a finished one)."""
     if cut is None:
@@ -531,7 +538,7 @@ def race(tr: ShapeTrainer) -> Path:
         "start" if co.iters > 0 else "init_radius",
         kept_name if kept_radius is None else kept_radius,
         names if co.iters > 0 else [g.init_radius] + list(g.init_candidates),
-        f"best fit of {len(entries)} complete runs to {tr.cfg.fit_rays} fixed training rays "
+        f"best fit of {len(entries)} {_runs_word(cuts)} to {tr.cfg.fit_rays} fixed training rays "
         f"(another start must beat {first} by {g.init_margin:g} dB"
         + (f", the opened one by {co.open_margin:g} dB with the carved one's genus"
            + (f", or within {co.open_tie:g} dB with one material where it fits worst"
@@ -553,7 +560,7 @@ def race(tr: ShapeTrainer) -> Path:
         kept = lc.init_roughness if best_k < n0 else roughs[best_k - n0]
         decisions.append(adaptive.Decision(
             "init_roughness", kept, values,
-            f"best fit of {len(values)} complete runs from {names[k_radius]} "
+            f"best fit of {len(values)} {_runs_word(cuts)} from {names[k_radius]} "
             f"({tr.cfg.fit_rays} fixed training rays): "
             + ", ".join(f"{v:g}: {p:.2f} dB" + _cut_note(cuts.get(runs[k][0]))
                         for v, p, k in zip(values, fits, [k_radius, *range(n0, n0 + len(roughs))],
