@@ -566,10 +566,11 @@ class ShapeConfig:
     """dB: a start of a race whose fit (on the ``fit_rays`` pixels) is more than this behind the
     best finished start's at ``race_cut_at`` of its steps stops there and loses (0 = off: every
     start runs to its end). It only drops a clear loser, it never picks a winner early (an
-    early winner was finding 13's mistake). `preview` 3: on the corpus and the dev scenes a
-    sphere start gained at most 1.70 dB from half its steps to its end, and the five that were
-    more than 3 dB behind there (chair, duck, gear, frame, table: 3.8-10.9 dB) stop, about 43 s
-    each; no race changes (docs/STAGE1.md finding 52). A resume may change it."""
+    early winner was finding 13's mistake). `preview` and `standard` 3: on the corpus and the
+    dev scenes a sphere start gained at most 1.70 dB (`preview`) and 1.34 dB (`standard`) from
+    half its steps to its end, an opened start at most 1.19 dB (`standard`); the starts more
+    than 3 dB behind there (five scenes at `preview`, seven at `standard`) stop, and no race
+    changes (docs/STAGE1.md finding 52). `quality` 0: not measured. A resume may change it."""
     race_cut_at: float = 0.5
     """Fraction of a start's ``iters`` at which ``race_cut`` is judged (once)."""
     ckpt_every_s: float = 60.0

@@ -533,7 +533,7 @@ def race(tr: ShapeTrainer) -> Path:
     if opening:
         evidence["open"] = proposal
     if cuts:
-        evidence["cut"] = {nm: c for nm, c in cuts.items()}
+        evidence["cut"] = dict(cuts)
     decisions = [adaptive.Decision(
         "start" if co.iters > 0 else "init_radius",
         kept_name if kept_radius is None else kept_radius,
