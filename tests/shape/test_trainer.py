@@ -298,6 +298,24 @@ def test_race_of_roughness_starts_from_the_kept_radius(scene, tmp_path):
     assert json.loads((tmp_path / "shape.json").read_text())["init_roughness"] == kept
 
 
+def _rerun_counting_steps(cfg: ShapeConfig, scene, out) -> tuple[ShapeTrainer, int]:
+    """Run (or resume) ``cfg`` in ``out``; returns the trainer and the training steps it took."""
+    counted = {"n": 0}
+    orig = ShapeTrainer.train_step
+
+    def counting(self):
+        counted["n"] += 1
+        return orig(self)
+
+    ShapeTrainer.train_step = counting
+    try:
+        tr = ShapeTrainer(cfg, scene, out, progress=False, log=lambda m: None)
+        tr.run()
+    finally:
+        ShapeTrainer.train_step = orig
+    return tr, counted["n"]
+
+
 def test_race_cut_stops_a_start_far_behind_at_its_halfway_and_resumes_there(scene, tmp_path):
     """``race_cut``: the small sphere r = 0.15, far behind the finished r = 0.7 at half its
     steps, stops there with its checkpoint and no mesh; it loses, the decision names where it
@@ -319,20 +337,8 @@ def test_race_cut_stops_a_start_far_behind_at_its_halfway_and_resumes_there(scen
     assert path.read_bytes() == (tmp_path / "starts" / "r0.7" / "mesh.ply").read_bytes()
     assert tr.step == 60  # 40 + the stopped start's 20
     assert any("more than race_cut = 0.5 dB: stopped" in x for x in lines)
-    counted = {"n": 0}
-    orig = ShapeTrainer.train_step
-
-    def counting(self):
-        counted["n"] += 1
-        return orig(self)
-
-    ShapeTrainer.train_step = counting
-    try:
-        again = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
-        again.run()
-    finally:
-        ShapeTrainer.train_step = orig
-    assert counted["n"] == 0 and again.step == 60
+    again, trained = _rerun_counting_steps(cfg, scene, tmp_path)
+    assert trained == 0 and again.step == 60
     dec2 = json.loads((tmp_path / "decisions.json").read_text())["init_radius"]
     assert dec2["evidence"]["cut"] == dec["evidence"]["cut"]
 
@@ -391,19 +397,8 @@ def test_race_interrupted_in_its_second_start_resumes_there(scene, tmp_path):
         ShapeTrainer.train_step = orig
     assert (tmp_path / "starts" / "r0.7" / "mesh.ply").is_file()
     assert not (tmp_path / "mesh.ply").exists()
-    counted = {"n": 0}
-
-    def counting(self):
-        counted["n"] += 1
-        return orig(self)
-
-    ShapeTrainer.train_step = counting
-    try:
-        tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda m: None)
-        tr.run()
-    finally:
-        ShapeTrainer.train_step = orig
-    assert counted["n"] == 11 and tr.step == 40 and (tmp_path / "mesh.ply").is_file()
+    tr, trained = _rerun_counting_steps(cfg, scene, tmp_path)
+    assert trained == 11 and tr.step == 40 and (tmp_path / "mesh.ply").is_file()
 
 
 def _coarse_cfg(coarse_iters: int, iters: int = 1) -> ShapeConfig:
