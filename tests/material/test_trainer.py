@@ -65,7 +65,7 @@ def test_recovers_albedo_metallic_roughness_with_known_geometry_and_light():
         tr = MaterialTrainer(cfg, geom, cache, log=lambda s: None, env_init=env)
         tr.fit(progress=False)
         a, m, r = tr.field(cache.tri, cache.bary, cache.x)
-        a, m, r = a.mean(0), m.mean(), r.mean()
+        a, m, r = a.mean(0).detach(), m.mean().detach(), r.mean().detach()
         assert torch.allclose(a, torch.tensor(TRUE["albedo"]), atol=0.05), a
         assert abs(float(m) - TRUE["metallic"]) < 0.1, m
         assert abs(float(r) - TRUE["roughness"]) < 0.05, r
@@ -378,6 +378,7 @@ def test_two_materials_are_found_and_each_gets_its_metalness_from_the_race():
         assert any("metalness race" in s for s in lines)
         _, m, _ = f(cache.tri, cache.bary, cache.x)
         hit_up = up[cache.tri]
+        m = m.detach()
         assert float(m[hit_up].median()) > 0.99 and float(m[~hit_up].median()) < 0.01
     finally:
         torch.set_num_threads(old)
@@ -519,7 +520,7 @@ def test_learned_normals_undo_a_smooth_tilt_on_a_glossy_sphere():
             tr.fit(progress=False)
             _, _, r = tr.field(cache.tri, cache.bary, cache.x)
             out[refine] = (_mean_angle_deg(tr.geom.vertex_normals[seen],
-                                           geom.vertex_normals[seen]), float(r.mean()))
+                                           geom.vertex_normals[seen]), float(r.mean().detach()))
         assert out[False][0] > 4.0  # the tilt held (a rotation turns normals off its axis less)
         assert out[True][0] < 0.35 * out[False][0], out
         assert abs(out[True][1] - TRUE["roughness"]) < 0.05, out
@@ -541,7 +542,7 @@ def test_checkpoint_resume_continues_identically_with_learned_normals(tmp_path):
     c = MaterialTrainer(cfg, geom, cache, log=lambda s: None)
     c.fit(ck, progress=False)
     assert c.step == 6
-    assert float(a.normals.theta.abs().max()) > 0  # they learned
+    assert float(a.normals.theta.abs().max().detach()) > 0  # they learned
     assert torch.allclose(c.normals.theta, a.normals.theta, atol=1e-6)
     assert torch.allclose(c.geom.vertex_normals, a.geom.vertex_normals, atol=1e-6)
     assert a.decisions["normals"]["refined"] is True

@@ -111,7 +111,7 @@ def test_partly_opaque_ray_composites_over_the_background_it_is_given():
     a = render_coarse(model, near, o, d, samples=64, train=False)
     b = render_coarse(model, far, o, d, samples=64, train=False)
     acc = a["acc"][:, None]
-    assert 0.05 < float(acc.min()) and float(acc.max()) < 0.95
+    assert 0.05 < float(acc.min().detach()) and float(acc.max().detach()) < 0.95
     assert torch.allclose(a["rgb"] - b["rgb"], (1 - acc) * (near(o, d) - far(o, d)), atol=1e-6)
 
 
@@ -200,4 +200,4 @@ def test_coarse_env_is_a_finer_copy_that_area_averages_back():
     # area-averaged back to 16 rows (as the SDF stage receives it) the map is the original
     # (within 1.5 % away from the pole rows, whose cells average over the cap)
     rel = (resample_area(fine.image(), 16, 32) / env.image() - 1.0).abs()
-    assert float(rel[1:-1].max()) < 0.015 and float(rel.mean()) < 0.01
+    assert float(rel[1:-1].max().detach()) < 0.015 and float(rel.mean().detach()) < 0.01

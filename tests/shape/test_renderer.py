@@ -67,7 +67,7 @@ def test_an_sdf_without_surface_gives_the_background(background):
     o, d = _rays(200, seed=1)
     out = render_rays(model, o, d, S, cfg, train=False)
     assert out["hit"].all()  # every ray crosses the bounding sphere ...
-    assert float(out["acc"].max()) < 1e-6  # ... and finds nothing in it
+    assert float(out["acc"].max().detach()) < 1e-6  # ... and finds nothing in it
     bg = model.env.background(d) if background == "distant" else \
         torch.tensor([0.2, 0.4, 0.6]).expand(200, 3)
     torch.testing.assert_close(out["rgb"], bg, rtol=1e-5, atol=1e-6)
@@ -83,7 +83,8 @@ def test_sphere_opacity_point_and_normal_match_the_closed_forms():
     b = (o * d).sum(-1)
     miss_dist = torch.sqrt(((o * o).sum(-1) - b * b).clamp_min(0.0))  # ray-centre distance
     clear = (miss_dist - r).abs() > 0.03 * r
-    out = render_rays(model, o, d, S, cfg, train=False)
+    out = {k: v.detach() if torch.is_tensor(v) else v
+           for k, v in render_rays(model, o, d, S, cfg, train=False).items()}
     acc = out["acc"]
     assert hit[clear].any() and (~hit[clear]).any()
     assert float(acc[clear & hit].min()) > 0.999
@@ -116,7 +117,7 @@ def test_deterministic_without_jitter():
     a = render_rays(model, o, d, S, cfg, train=False)
     b = render_rays(model, o, d, S, cfg, train=False)
     assert torch.equal(a["rgb"], b["rgb"]) and torch.equal(a["acc"], b["acc"])
-    assert math.isfinite(float(a["rgb"].sum()))
+    assert math.isfinite(float(a["rgb"].sum().detach()))
 
 
 def test_the_diffuse_lobe_and_irradiance_options_reach_the_shading():
@@ -144,7 +145,7 @@ def test_the_diffuse_lobe_and_irradiance_options_reach_the_shading():
     assert hit.any() and miss.any()
     # (a miss keeps up to 1e-3 of the surface's colour)
     torch.testing.assert_close(a["rgb"][miss], b["rgb"][miss], rtol=1e-3, atol=2e-4)
-    assert float((a["rgb"][hit] - b["rgb"][hit]).abs().max()) > 1e-3
+    assert float((a["rgb"][hit] - b["rgb"][hit]).abs().max().detach()) > 1e-3
     for out, m, lobe in ((a, model, "weighted"), (b, other, "principled")):
         n, idx = out["n_hit"], out["hit_idx"]
         sel = out["acc_hit"] > 0.999
