@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tools.corpus import bench, bg_consistency, build, envmaps, rigs, shapes
-from tools.corpus.scenes import SCENES, Material, SceneSpec
+from tools.corpus.scenes import HELDOUT, SCENES, Material, SceneSpec, by_name
 from voxnero.mesh.topology import genus, mesh_topology
 
 # --------------------------------------------------------------------------- shapes / genus
@@ -48,9 +48,9 @@ def test_shape_touching_the_grid_border_is_refused():
 
 
 def test_every_corpus_spec_is_consistent():
-    names = [s.name for s in SCENES]
-    assert len(names) >= 10 and len(set(names)) == len(names)
-    for s in SCENES:
+    names = [s.name for s in SCENES + HELDOUT]
+    assert len(SCENES) >= 10 and len(set(names)) == len(names)
+    for s in SCENES + HELDOUT:
         assert s.env not in s.relight and len(set(s.relight)) == 2
         assert {s.env, *s.relight} <= set(envmaps.SOURCES)
         assert len(s.materials) == (1 if s.split_z is None else 2)
@@ -58,6 +58,13 @@ def test_every_corpus_spec_is_consistent():
     rough = [m.roughness for s in SCENES for m in s.materials]
     assert min(rough) <= 0.05 and max(rough) >= 0.5
     assert {0.3, 0.8} <= {s.fill for s in SCENES}
+
+
+def test_held_out_scenes_are_built_only_by_name():
+    assert by_name(None) == list(SCENES)  # the corpus, its benches and medians: never held out
+    assert by_name([HELDOUT[0].name, SCENES[0].name]) == [HELDOUT[0], SCENES[0]]
+    with pytest.raises(SystemExit, match="unknown corpus scene"):
+        by_name(["no_such_scene"])
 
 
 # --------------------------------------------------------------------------- cameras

@@ -302,3 +302,41 @@ def chair() -> SDF:
     rails = [capsule((-0.29, 0.29, z), (0.29, 0.29, z), 0.022) for z in (0.22, 0.40, 0.58)]
     return transformed(union(seat, *legs, *posts, *rails), rotation("z", 35.0),
                        offset=(0.0, -0.05, 0.02))
+
+
+def vase() -> SDF:
+    """A vase 0.04 thick: a round body, a narrow neck open at the top (a cavity seen only
+    through a hole 0.3 wide), genus 0."""
+    def solid(r_body: float, r_neck: float, top: float) -> SDF:
+        body = transformed(sphere(r_body), offset=(0.0, 0.0, -0.2))
+        return smooth_union(body, cylinder_z(r_neck, -0.2, top), 0.15)
+    return transformed(subtract(solid(0.5, 0.19, 0.55), solid(0.46, 0.15, 0.8)),
+                       rotation("y", 8.0))
+
+
+def teapot() -> SDF:
+    """A teapot: a smooth oval body, a spout 0.1 wide, a round handle (genus 1) and a knob."""
+    radii = np.array([0.45, 0.45, 0.32], dtype=np.float32)
+
+    def body(p: np.ndarray) -> np.ndarray:  # ellipsoid (a bound, exact on its surface)
+        return (np.linalg.norm(p / radii, axis=1) - 1.0) * float(radii.min())
+    spout = capsule((0.3, 0.0, -0.05), (0.66, 0.0, 0.3), 0.05)
+    ring = transformed(torus(0.2, 0.035), rotation("x", 90.0), offset=(-0.46, 0.0, 0.0))
+    handle = intersect(ring, lambda p: p[:, 0] + 0.3)  # its ends inside the body
+    knob = transformed(sphere(0.07), offset=(0.0, 0.0, 0.34))
+    return transformed(union(smooth_union(body, spout, 0.04), handle, knob),
+                       rotation("z", -20.0), offset=(-0.05, 0.0, 0.0))
+
+
+def cow() -> SDF:
+    """A stylised cow (the held-out scene): a body and a head joined by a neck, four legs 0.07
+    wide, two horns and a tail 0.036 wide (about 3 px at 63 % fill), genus 0."""
+    body = smooth_union(capsule((-0.32, 0.0, 0.12), (0.26, 0.0, 0.14), 0.2),
+                        capsule((0.3, 0.0, 0.22), (0.5, 0.0, 0.3), 0.1), 0.08)
+    head = smooth_union(body, capsule((0.52, 0.0, 0.32), (0.66, 0.0, 0.2), 0.085), 0.05)
+    legs = [capsule((x, y, 0.0), (x, y, -0.62), 0.035) for x in (-0.3, 0.22)
+            for y in (-0.11, 0.11)]
+    horns = [capsule((0.52, 0.06 * s, 0.38), (0.48, 0.2 * s, 0.52), 0.018) for s in (-1, 1)]
+    tail = capsule((-0.5, 0.0, 0.2), (-0.6, 0.0, -0.2), 0.018)
+    return transformed(union(head, *legs, *horns, tail), rotation("z", 25.0),
+                       offset=(0.0, 0.0, 0.1))
