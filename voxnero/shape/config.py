@@ -159,11 +159,12 @@ class CoarseConfig:
     (:func:`voxnero.shape.hull.grow_seen_as_object`, :mod:`voxnero.shape.bg_votes`). A
     mirror's density can sit below its shiny face, and its hull then lacks that face (the
     gear's tooth tops, docs/STAGE1.md finding 38). Not with a near background (a capture's
-    table: the coarse stage's map does not draw it). 0 = off (`preview`: the gear 0.88 -> 1.19
-    px with 4); `standard` and `quality` 4: corpus median 0.595 -> 0.584 px, worst 2.61 ->
-    2.35, the gear's genus right at three seeds, the pretzel's pits gone (with
-    ``grid.init_margin`` 0, so that sphere_gold's race keeps its better sphere start,
-    finding 39)."""
+    table: the coarse stage's map does not draw it). 0 = off. `standard` and `quality` 4:
+    corpus median 0.595 -> 0.584 px, worst 2.61 -> 2.35, the gear's genus right at three seeds,
+    the pretzel's pits gone (with ``grid.init_margin`` 0, so that sphere_gold's race keeps its
+    better sphere start, finding 39). `preview` 4 since session 50: its 300-step hull of a
+    smooth metal lacked whole faces (held-out vase 3.37 -> 1.41 px, teapot 2.33 -> 1.84; corpus
+    median 0.66 -> 0.63, worst 2.93 -> 2.59; the gear 0.79 -> 1.14, finding 55)."""
     bg_quantile: float = 0.95
     """Quantile of the hull core's background ratio that a grown corner must stay below."""
     open_worst: bool = False
