@@ -163,10 +163,13 @@ class CoarseConfig:
     corpus median 0.595 -> 0.584 px, worst 2.61 -> 2.35, the gear's genus right at three seeds,
     the pretzel's pits gone (with ``grid.init_margin`` 0, so that sphere_gold's race keeps its
     better sphere start, finding 39). `preview` 4 since session 50: its 300-step hull of a
-    smooth metal lacked whole faces (held-out vase 3.37 -> 1.41 px, teapot 2.33 -> 1.84; corpus
-    median 0.66 -> 0.63, worst 2.93 -> 2.59; the gear 0.79 -> 1.14, finding 55)."""
+    smooth metal lacked whole faces (held-out vase 3.37 -> 1.42 px, teapot 2.33 -> 1.73; corpus
+    median 0.66 -> 0.63, worst 2.93 -> 2.64; the gear 0.79 -> 0.97, with ``bg_quantile`` 0.9,
+    finding 55)."""
     bg_quantile: float = 0.95
-    """Quantile of the hull core's background ratio that a grown corner must stay below."""
+    """Quantile of the hull core's background ratio that a grown corner must stay below.
+    `preview` 0.9: its 300-step core is fatter and holds corners seen against the background
+    (the gear 1.14 -> 0.97 px, the bowl 2.59 -> 2.64; docs/STAGE1.md finding 55)."""
     open_worst: bool = False
     """Propose one more start to the race (:func:`voxnero.shape.starts.race`,
     :mod:`voxnero.shape.proposals`): after the carved start's complete run, the surface patch
