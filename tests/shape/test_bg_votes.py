@@ -95,3 +95,33 @@ def test_a_hull_without_its_upper_half_grows_back_to_the_sphere_only():
     # grow = 0 leaves the hull as it is
     same, ev0 = hull.grow_seen_as_object(lower, ratio_of, 0)
     assert same is lower and ev0["added"] == 0
+
+
+def test_the_growth_threshold_is_the_quantile_of_the_cores_ratios_and_a_lower_one_adds_less():
+    """``quantile`` (``coarse.bg_quantile``, 0.9 at `preview`): the threshold is that quantile
+    of the ratios over the solid's eroded core, and only shell corners at or below it grow."""
+    n = 24
+    idx = np.indices((n, n, n)).transpose(1, 2, 3, 0).reshape(-1, 3)
+    ratio = np.random.default_rng(1).uniform(0.0, 1.0, n ** 3)  # one ratio per corner
+
+    def ratio_of(sel: np.ndarray) -> np.ndarray:
+        return ratio[np.flatnonzero(sel)]
+
+    inside = np.zeros((n, n, n), bool)
+    inside[6:18, 6:18, 6:18] = True
+    core = np.zeros_like(inside)
+    core[8:16, 8:16, 8:16] = True  # eroded by 2
+    shell = np.zeros_like(inside)
+    shell[5:19, 5:19, 5:19] = True
+    shell &= ~inside
+    shell &= (np.abs(idx.reshape(n, n, n, 3) - 11.5) > 6.0).sum(-1) == 1  # 6-neighbours only
+    added = {}
+    for q in (0.95, 0.9):
+        grown, ev = hull.grow_seen_as_object(inside, ratio_of, 1, quantile=q)
+        assert ev["threshold"] == round(float(np.quantile(ratio[core.ravel()], q)), 4)
+        assert ev["shell"] == int(shell.sum())
+        assert ev["added"] == int((ratio[shell.ravel()] <= np.quantile(ratio[core.ravel()], q))
+                                  .sum())
+        assert (grown & ~inside).sum() > 0 and not (grown & ~(inside | shell)).any()
+        added[q] = ev["added"]
+    assert 0 < added[0.9] < added[0.95]

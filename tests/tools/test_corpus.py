@@ -24,6 +24,9 @@ from voxnero.mesh.topology import genus, mesh_topology
                   shapes.transformed(shapes.torus(0.3, 0.1), offset=(0.45, 0, 0))), 96, 2),
     (shapes.pretzel(), 128, 3),
     (shapes.frame_cube(), 96, 5),
+    (shapes.teapot(), 96, 1),  # held out: the handle joins the body
+    (shapes.vase(), 96, 0),
+    (shapes.cow(), 128, 0),  # horns and tail 0.036 wide: one piece with the body
 ])
 def test_genus_of_marching_cubes_meshes(sdf, res, expected):
     m = shapes.mesh_sdf(sdf, res)
