@@ -26,6 +26,10 @@ def test_eval_gt_mesh_of_sphere_gold(tmp_path, capsys):
     m = json.loads((out / "metrics.json").read_text())
     assert m["chamfer"]["cd"] <= 0.002  # measured 0.00176
     assert m["chamfer"]["frame"] == "input" and m["n_views"] == 16
+    # against its own depth at the pixel centres the truth scores 0; the protocol's floor is
+    # what it scores against the stored (pixel-averaged) depth
+    assert m["chamfer_exact"]["cd"] <= 1e-9
+    assert m["chamfer_exact"]["truth_cd"] == pytest.approx(m["chamfer"]["cd"], rel=1e-6)
     assert m["normals"]["mean_deg"] < 0.5  # measured 0.066° (vertex normals from the PLY)
     assert "| chamfer.cd |" in (out / "metrics.md").read_text()
     img = Image.open(out / "normals_r_000.png")

@@ -187,7 +187,8 @@ def test_z_depth_is_along_the_viewing_axis():
 def _row(scene, preset, px, normal, relight, genus, genus_true, shape_s=100.0):
     return {"scene": scene, "preset": preset, "stage": "both", "status": "ok",
             "time_s": shape_s + 10, "shape_s": shape_s, "material_s": 10.0,
-            "chamfer": px * 0.01, "chamfer_px": px, "normal_deg": normal, "genus": genus,
+            "chamfer": px * 0.01, "chamfer_px": px, "chamfer_exact_px": 2 * px,
+            "normal_deg": normal, "genus": genus,
             "genus_true": genus_true, "components": 1, "psnr_object": 25.0,
             "relight_psnr": relight, "pixel_size": 0.01}
 
@@ -200,8 +201,9 @@ def test_summary_gives_medians_the_worst_scene_and_genus_hits():
     assert s["chamfer_px_median"] == 2.0 and s["chamfer_px_worst"] == 3.0
     assert s["worst_scene"] == "b" and s["genus_right"] == "1 / 2"
     assert s["relight_psnr_worst"] == 20.0 and s["shape_s_worst"] == 300.0
+    assert s["chamfer_exact_px_median"] == 4.0 and s["chamfer_exact_px_worst"] == 6.0
     md = bench.markdown(rows)
-    assert "| b | `preview` | 3.00 |" in md and "0 (3)" in md
+    assert "| b | `preview` | 3.00 | 0.0300 | 6.00 |" in md and "0 (3)" in md
 
 
 def test_mesh_topology_reads_the_largest_component(tmp_path):
@@ -243,9 +245,12 @@ def test_collect_finds_the_mesh_of_a_point_with_overrides(tmp_path):
     sdir = bench.run_dirs(out, "ring", point)[0]
     sdir.mkdir(parents=True)
     write_mesh(sdir / "mesh.ply", torus.vertices, torus.triangles, torus.normals)
+    (sdir / "eval").mkdir()
+    (sdir / "eval" / "metrics.json").write_text('{"chamfer_exact": {"cd": 0.008}}')
     (r,) = bench.collect(corpus, out)
     assert r["genus"] == 1 and r["components"] == 1
     assert r["chamfer_px"] == pytest.approx(0.5)
+    assert r["chamfer_exact_px"] == pytest.approx(0.8)  # a stage-1 point: its own eval
 
 
 @pytest.mark.slow

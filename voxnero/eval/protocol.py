@@ -70,6 +70,11 @@ def summary_lines(m: dict) -> list[str]:
             line += (f"; normal error mean {m['normals']['mean_deg']:.2f} deg, median "
                      f"{m['normals']['median_deg']:.2f} deg")
         lines.append(line)
+        if isinstance(m.get("chamfer_exact"), dict):
+            e = m["chamfer_exact"]
+            lines.append(f"chamfer against the true mesh at the pixel centres {e['cd']:.5f} "
+                         f"(acc {e['acc']:.5f}, comp {e['comp']:.5f}); the truth scores "
+                         f"{e['truth_cd']:.5f} against the stored depth")
         if isinstance(m.get("novel_view"), dict):
             nv, mt = m["novel_view"], m["materials"]
             lines.append(f"novel views PSNR {nv['psnr']:.2f} dB (object {nv['psnr_object']:.2f} "
