@@ -37,7 +37,10 @@ HELP = "score a run against a scene's ground truth (Chamfer, normals; stage 2: i
 DESCRIPTION = (
     "Score a mesh against a scene's ground truth by the project's protocol: Chamfer distance "
     "(GT test-view depth vs the mesh ray-cast at the same pixels, voxel 0.01, input frame) and "
-    "normal error (degrees) at the test views.\n\n"
+    "normal error (degrees) at the test views. A scene with gt/mesh.ply is also scored against "
+    "the true mesh ray-cast at the pixel centres (chamfer_exact): the stored depth averages each "
+    "pixel, so a depth edge inside the object (a cavity's rim) puts points in mid-air, which "
+    "flatter a lid.\n\n"
     "RUN_OR_MESH: a run folder holding mesh.ply (as 'voxnero shape' writes it) or a mesh file, "
     "both in the scene's input frame, or a 'voxnero material' folder (model.glb + envmap.exr): "
     "then the stage-1 mesh it was fitted on is scored as above and the exported asset is "
