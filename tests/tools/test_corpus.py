@@ -27,6 +27,8 @@ from voxnero.mesh.topology import genus, mesh_topology
     (shapes.teapot(), 96, 1),  # held out: the handle joins the body
     (shapes.vase(), 96, 0),
     (shapes.cow(), 128, 0),  # horns and tail 0.036 wide: one piece with the body
+    (shapes.ladle(), 128, 0),  # the dish 0.05 thick: one closed wall (at 96³ pinched, open)
+    (shapes.hammer(), 96, 0),  # the claw's notch cuts the head's end, not through the handle
 ])
 def test_genus_of_marching_cubes_meshes(sdf, res, expected):
     m = shapes.mesh_sdf(sdf, res)

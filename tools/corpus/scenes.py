@@ -123,6 +123,17 @@ HELDOUT: tuple[SceneSpec, ...] = (
               (Material("aluminium", (0.91, 0.92, 0.92), 1.0, 0.25),), "proc_courtyard",
               ("room_a", "warehouse"), rig="rings",
               covers=("smooth metal", "handle (genus 1)", "spout", "outdoor")),
+    # built in session 51, after preview's hull growth (finding 55) was chosen: never tuned on
+    SceneSpec("ladle_steel", _sdf(shapes.ladle), PROCEDURAL + ": ladle, a shallow dish",
+              (Material("polished steel", (0.8, 0.8, 0.82), 1.0, 0.12),), "venice_sunset",
+              ("room_b", "sky_low"), rig="full",
+              covers=("shallow concavity", "smooth metal", "thin handle", "views from below")),
+    SceneSpec("hammer_oak_iron", _sdf(shapes.hammer), PROCEDURAL + ": hammer, head and handle",
+              (Material("oiled oak", (0.5, 0.32, 0.16), 0.0, 0.45),
+               Material("iron", (0.56, 0.57, 0.58), 1.0, 0.3)),
+              "room_b", ("proc_courtyard", "warehouse"), split_z=0.4, rig="rings",
+              covers=("metal + dielectric", "flat faces", "sharp edges", "thin handle",
+                      "indoor")),
 )
 """Scenes built only to check that what was tuned on ``SCENES`` holds on a shape it never saw
 (``--scenes cow_ivory``): not in the corpus, its benches or its medians (docs/CORPUS.md)."""

@@ -340,3 +340,25 @@ def cow() -> SDF:
     tail = capsule((-0.5, 0.0, 0.2), (-0.6, 0.0, -0.2), 0.018)
     return transformed(union(head, *legs, *horns, tail), rotation("z", 25.0),
                        offset=(0.0, 0.0, 0.1))
+
+
+def ladle() -> SDF:
+    """A ladle (held out, session 51): a shallow spherical dish 0.05 thick, 0.25 deep, open
+    upwards, and a handle 0.07 wide rising from its rim (a shallow concavity, genus 0)."""
+    dish = intersect(lambda p: np.abs(np.linalg.norm(p - np.array([0.0, 0.0, 0.45]), axis=1)
+                                      - 0.7) - 0.025,
+                     lambda p: p[:, 2] + 0.0)
+    handle = capsule((0.52, 0.0, -0.02), (0.95, 0.0, 0.5), 0.035)
+    return transformed(union(dish, handle), rotation("z", 30.0), offset=(-0.15, 0.0, -0.13))
+
+
+def hammer() -> SDF:
+    """A hammer standing on its handle's end (held out, session 51): a handle 0.1 wide and a
+    head with flat faces and a claw split by a notch (two materials split at z = 0.4)."""
+    handle = capsule((0.0, 0.0, -0.75), (0.0, 0.0, 0.5), 0.05)
+    head = box((0.4, 0.08, 0.1))
+    face = transformed(cylinder_z(0.09, -0.12, 0.12), rotation("y", 90.0), offset=(0.4, 0.0, 0.0))
+    notch = transformed(box((0.2, 0.02, 0.2)), offset=(-0.42, 0.0, 0.0))
+    top = transformed(subtract(union(head, face), notch), offset=(0.0, 0.0, 0.55))
+    return transformed(union(handle, top), rotation("z", -35.0))
+
