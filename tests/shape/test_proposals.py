@@ -198,8 +198,8 @@ def test_material_contrast_is_the_largest_material_step_between_patch_and_ring()
 
 def test_propose_open_proposes_only_a_patch_painted_unlike_its_surroundings(monkeypatch):
     """``propose_open`` with the surface's fit given (a cap of high error): the lid-painted
-    cap is proposed (an edit) at ``open_contrast`` 0.3; the cap painted like the walls is not
-    (``None``, the contrast in the evidence); with ``open_contrast`` 0 it is."""
+    cap is proposed (an edit) at ``open_gate`` 0.3; the cap painted like the walls is not
+    (``None``, the contrast in the evidence); with ``open_gate`` 0 (the default) it is."""
     from types import SimpleNamespace
 
     from voxnero.shape import proposals
@@ -209,7 +209,7 @@ def test_propose_open_proposes_only_a_patch_painted_unlike_its_surroundings(monk
     err = np.where(p[:, 2] > 0.8 * R, 0.06, 0.02)
     monkeypatch.setattr(proposals, "surface_error", lambda tr, b: (p, err))
     monkeypatch.setattr(proposals, "closed_surface", lambda tr: _sphere_mesh())
-    co = CoarseConfig(res=64, open_contrast=0.3)
+    co = CoarseConfig(res=64, open_gate=0.3)
 
     def trainer(lid: bool):
         m = _PaintedModel(lid)
@@ -221,6 +221,6 @@ def test_propose_open_proposes_only_a_patch_painted_unlike_its_surroundings(monk
     # the blurred patch may take in a few wall points at the cap's rim
     assert edit is not None and ev["material"]["contrast"] > 0.7 and ev["patch_cubes"] > 0
     edit, ev = proposals.propose_open(trainer(False), co)
-    assert edit is None and ev["material"]["contrast"] == 0.0 and ev["min_contrast"] == 0.3
-    edit, _ = proposals.propose_open(trainer(False), CoarseConfig(res=64, open_contrast=0.0))
+    assert edit is None and ev["material"]["contrast"] == 0.0 and ev["gate"] == 0.3
+    edit, _ = proposals.propose_open(trainer(False), CoarseConfig(res=64))
     assert edit is not None

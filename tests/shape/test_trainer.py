@@ -505,7 +505,6 @@ def test_coarse_start_proposes_its_opened_shell_and_keeps_the_better_fit(scene, 
     monkeypatch.setattr(proposals, "MIN_PIXELS", 3)  # 64² photos: few pixels per surface cube
     cfg = _coarse_cfg(250, iters=20)  # a hull at the sphere's radius
     cfg.coarse.open_worst, cfg.coarse.open_k = True, 1.0  # k = 1: a patch always exists
-    cfg.coarse.open_contrast = 0.0  # proposed whatever its material
     cfg.coarse.open_shell = 0.5  # the sphere is ~4 coarse voxels in radius: thinner walls
     cfg.coarse.sdf_first = 1.0
     assert starts.has_race(cfg)
@@ -550,7 +549,6 @@ def test_race_judges_the_opened_start_with_its_margin_and_records_a_kept_radius(
     _finished_at_the_sphere(monkeypatch)
     cfg = _coarse_cfg(250, iters=2)
     cfg.coarse.race, cfg.coarse.open_worst, cfg.coarse.open_k = True, True, 1.0
-    cfg.coarse.open_contrast = 0.0
     tr = ShapeTrainer(cfg, scene, tmp_path, progress=False, log=lambda s: None)
     tr.run()
     dec = json.loads((tmp_path / "decisions.json").read_text())["start"]
@@ -563,7 +561,7 @@ def test_race_judges_the_opened_start_with_its_margin_and_records_a_kept_radius(
     again = json.loads((tmp_path / "again" / "decisions.json").read_text())["start"]
     assert again["value"] == "coarse"
     assert "the opened one by 0.1 dB" in again["reason"]
-    cfg.coarse.open_contrast = 1.0  # the gate proposes no opened start: none runs or is named
+    cfg.coarse.open_gate = 1.0  # the gate proposes no opened start: none runs or is named
     tr = ShapeTrainer(cfg, scene, tmp_path / "gated", progress=False, log=lambda s: None)
     tr.run()
     gated = json.loads((tmp_path / "gated" / "decisions.json").read_text())["start"]
@@ -572,19 +570,21 @@ def test_race_judges_the_opened_start_with_its_margin_and_records_a_kept_radius(
     assert not (tmp_path / "gated" / "starts" / "coarse_open").exists()
 
 
-@pytest.mark.parametrize("opened_contrast,fit,tied", [
-    (0.1, 9.85, True),  # worse by 0.15 (within open_tie 0.25), one material
-    (0.1, 10.05, True),  # better, but by less than open_margin 0.1: a tie too
-    (0.5, 9.85, False),  # within the tie, but its worst patch is painted too
-    (0.1, 9.6, False),  # one material, but worse by 0.4: no tie (nothing measured)
-    (0.1, 10.2, False),  # better by more than the margin: judged by the margin, not here
+@pytest.mark.parametrize("carved_contrast,opened_contrast,fit,tied", [
+    (0.6, 0.1, 9.85, True),  # worse by 0.15 (within open_tie 0.25), one material
+    (0.6, 0.1, 10.05, True),  # better, but by less than open_margin 0.1: a tie too
+    (0.6, 0.5, 9.85, False),  # within the tie, but its worst patch is painted too
+    (0.6, 0.1, 9.6, False),  # one material, but worse by 0.4: no tie (nothing measured)
+    (0.6, 0.1, 10.2, False),  # better by more than the margin: judged by the margin, not here
+    (0.2, 0.1, 9.85, False),  # the carved run needed no second material: a solid, no tie
 ])
-def test_an_opened_start_ties_within_open_tie_with_one_material(monkeypatch, opened_contrast,
-                                                                fit, tied):
+def test_an_opened_start_ties_within_open_tie_with_one_material(monkeypatch, carved_contrast,
+                                                                opened_contrast, fit, tied):
     """:func:`starts.tied_with_one_material` against a carved fit of 10 dB: a tie needs the
-    fit within [10 − ``open_tie``, 10 + ``open_margin``] and the opened run's own worst patch
-    painted like its surroundings (contrast < ``open_contrast`` 0.3); the measurement is
-    taken (and recorded) only for a fit in that range; ``open_tie`` 0 turns it off."""
+    fit within [10 − ``open_tie``, 10 + ``open_margin``], the carved run's worst patch painted
+    unlike its surroundings (a lid: contrast ≥ ``open_contrast`` 0.3) and the opened run's own
+    painted like them (< 0.3); the opened run is measured (and recorded) only when the rest
+    holds; ``open_tie`` 0 turns it off."""
     from voxnero.shape import proposals
     from voxnero.shape.config import CoarseConfig
 
@@ -596,13 +596,13 @@ def test_an_opened_start_ties_within_open_tie_with_one_material(monkeypatch, ope
 
     monkeypatch.setattr(proposals, "worst_patch_evidence", evidence)
     co = CoarseConfig(open_tie=0.25, open_margin=0.1, open_contrast=0.3)
-    ev: dict = {}
+    ev: dict = {"material": {"contrast": carved_contrast}}
     assert starts.tied_with_one_material("opened", fit, 10.0, co, ev) is tied
-    in_range = 9.75 <= fit <= 10.1
-    assert calls == (["opened"] if in_range else [])
-    assert ("opened" in ev) is in_range
-    assert not starts.tied_with_one_material("opened", 9.9, 10.0,
-                                             CoarseConfig(open_tie=0.0), {})
+    measured = 9.75 <= fit <= 10.1 and carved_contrast >= 0.3
+    assert calls == (["opened"] if measured else [])
+    assert ("opened" in ev) is measured
+    assert not starts.tied_with_one_material("opened", 9.9, 10.0, CoarseConfig(open_tie=0.0),
+                                             {"material": {"contrast": 0.6}})
 
 
 def test_race_keeps_an_opened_start_that_ties_with_one_material(scene, tmp_path, monkeypatch):
@@ -656,7 +656,6 @@ def test_race_keeps_an_opened_start_only_with_the_carved_runs_genus(scene, tmp_p
     _finished_at_the_sphere(monkeypatch)
     cfg = _coarse_cfg(250, iters=2)
     cfg.coarse.race, cfg.coarse.open_worst, cfg.coarse.open_k = False, True, 1.0
-    cfg.coarse.open_contrast = 0.0
     tr = ShapeTrainer(cfg, scene, tmp_path / "tunnel", progress=False, log=lambda s: None)
     tr.run()
     dec = json.loads((tmp_path / "tunnel" / "decisions.json").read_text())["start"]

@@ -123,7 +123,7 @@ class CoarseConfig:
         "bg_grow": at_least(0, 64), "bg_quantile": Range(0.0, 1.0),
         "open_k": Range(1.0, 100.0), "open_shell": positive(64.0), "open_hold": Range(0.0, 1.0),
         "open_margin": Range(0.0, 10.0), "open_tie": Range(0.0, 10.0),
-        "open_contrast": Range(0.0, 1.0)}
+        "open_contrast": Range(0.0, 1.0), "open_gate": Range(0.0, 1.0)}
 
     iters: int = 0
     """Steps of the coarse stage; 0 = off (the SDF starts from the sphere ``grid.init_radius``
@@ -174,17 +174,17 @@ class CoarseConfig:
     """Propose one more start to the race (:func:`voxnero.shape.starts.race`,
     :mod:`voxnero.shape.proposals`): after the carved start's complete run, the surface patch
     whose photos it explains worst (error above ``open_k`` times the surface's median) may be
-    the lid the hull puts over a cavity (a mug's, a bowl's: the photos see into it but never
-    through it, so the density fills it); the carved start is made a shell 2·``open_shell``
-    coarse voxels thick, opened under that patch, and runs complete too. The race keeps it if
-    it fits ``open_margin`` dB better and its mesh has the carved run's genus (an opened lid
-    adds no tunnel). Proposed only for a patch painted with another material than the surface
-    around it (``open_contrast``: a lid, not an edge), so a solid object costs the error map
-    alone (13-37 s). Off here (`preview`'s fits do not tell an open cavity from the lid,
-    finding 28, and its 4 minutes hold no third run); on in `standard` and `quality`: on the
-    corpus it runs for the mug and the bowl alone and opens the mug (1.96 -> 0.82 px, normal
-    error 12.2 -> 4.5 deg) and, by ``open_tie``, the bowl (2.34 -> 1.22 px) (docs/STAGE1.md
-    findings 44-48)."""
+    the lid the hull puts over a cavity (a mug's, a bowl's, a ladle's: the photos see into it
+    but never through it, so the density fills it); the carved start is made a shell
+    2·``open_shell`` coarse voxels thick, opened under that patch, and runs complete too. The
+    race keeps it if it fits ``open_margin`` dB better and its mesh has the carved run's genus
+    (an opened lid adds no tunnel), or if it ties (``open_tie``, ``open_contrast``). Off here
+    (`preview`'s fits do not tell an open cavity from the lid, finding 28, and its 4 minutes
+    hold no third run); on in `standard` and `quality`, for every carved run (``open_gate``
+    0): on the corpus it opens the mug (1.96 -> 0.82 px, normal error 12.2 -> 4.5 deg) and,
+    by ``open_tie``, the bowl (2.34 -> 1.22 px), and the held-out ladle (2.09 -> 1.17 px),
+    whose lid the material gate of sessions 44-50 let through (docs/STAGE1.md findings 44-48,
+    57)."""
     open_k: float = 1.5
     """Error above this many times the surface's median marks the worst patch."""
     open_shell: float = 1.5
@@ -206,12 +206,18 @@ class CoarseConfig:
     material where the carved run needed a painted lid:
     :func:`voxnero.shape.starts.tied_with_one_material`). 0 = off."""
     open_contrast: float = 0.3
-    """The opened start is run only if the model's material on the worst patch differs from
-    the ring of surface around it by at least this much (largest absolute difference of the
-    mean metallic, roughness and linear albedo channels,
-    :func:`voxnero.shape.proposals.material_contrast`): a lid is painted with another
-    material to explain the cavity it hides, a solid object's worst patch (edges, its hardest
-    material) has its surroundings' (docs/STAGE1.md finding 46). 0 = every patch."""
+    """A lid is painted with another material than the walls it joins, to explain the cavity
+    it hides; a solid object's worst patch (edges, its hardest material) has its
+    surroundings' (docs/STAGE1.md finding 46). An opened start that ties (``open_tie``) is kept
+    only if the carved run's worst patch differs from the ring of surface around it by at
+    least this much (largest absolute difference of the mean metallic, roughness and linear
+    albedo channels, :func:`voxnero.shape.proposals.material_contrast`) and its own by less."""
+    open_gate: float = 0.0
+    """Run the opened start only if the carved run's worst patch's material contrast is at
+    least this (saves its complete run on objects whose worst patch is painted like its
+    surroundings). 0 = for every carved run, the photos and the genus judge: at 0.3 (sessions
+    44-50) the held-out ladle's lid (contrast 0.20) was never opened (docs/STAGE1.md finding
+    57)."""
     race: bool = True
     """Race the coarse start against the sphere of ``grid.init_radius`` (complete runs, the
     better final fit kept, :func:`voxnero.shape.starts.race`): a mirror's density can be a

@@ -303,8 +303,8 @@ def open_start(patch: np.ndarray, shell_voxels: float, hold: float, source):
 def worst_patch_evidence(tr: ShapeTrainer, co) -> tuple[np.ndarray, dict]:
     """The finished run ``tr``'s :func:`worst_patch` (``(P, 3)``, unit frame) and the evidence
     on it: surface cubes, patch cubes, the median error, its :func:`material_contrast` with the
-    ring around it, ``co.open_contrast`` and the seconds it took (``co``: the run's
-    :class:`~voxnero.shape.config.CoarseConfig`, for ``res`` and ``open_k``)."""
+    ring around it, ``co.open_contrast``, ``co.open_gate`` and the seconds it took (``co``:
+    the run's :class:`~voxnero.shape.config.CoarseConfig`, for ``res`` and ``open_k``)."""
     import time
 
     t0 = time.perf_counter()
@@ -317,7 +317,7 @@ def worst_patch_evidence(tr: ShapeTrainer, co) -> tuple[np.ndarray, dict]:
     evidence = {"surface_cubes": int(points.shape[0]), "patch_cubes": int(patch.shape[0]),
                 "median_error": round(float(np.median(error)), 5) if error.size else None,
                 "k": co.open_k, "bin": round(bin_size, 5), "seconds": round(seconds, 2),
-                "material": contrast, "min_contrast": co.open_contrast}
+                "material": contrast, "min_contrast": co.open_contrast, "gate": co.open_gate}
     return patch, evidence
 
 
@@ -325,16 +325,15 @@ def propose_open(tr: ShapeTrainer, co) -> tuple:
     """The opened start from a finished carved run ``tr`` (``co``: its
     :class:`~voxnero.shape.config.CoarseConfig`): the :func:`open_start` edit of its
     :func:`worst_patch`, or ``None`` if there is no patch or the model's material on it differs
-    from its surroundings by less than ``co.open_contrast`` (:func:`material_contrast`: a lid
-    is painted with another material; 0 proposes every patch), and the evidence for the race's
-    decision (:func:`worst_patch_evidence`)."""
+    from its surroundings by less than ``co.open_gate`` (:func:`material_contrast`; 0 proposes
+    every patch), and the evidence for the race's decision (:func:`worst_patch_evidence`)."""
     patch, evidence = worst_patch_evidence(tr, co)
     contrast = evidence["material"]
     tr.log(f"[shape] worst-fitted patch of the carved run: {patch.shape[0]} of "
            f"{evidence['surface_cubes']} surface cubes above {co.open_k:g} x the median error; "
            f"its material differs from the ring around it by {contrast['contrast']:.2f} "
-           f"(metallic, roughness, albedo; an opened start needs {co.open_contrast:g}) "
+           f"(metallic, roughness, albedo; a lid's is {co.open_contrast:g} or more) "
            f"({evidence['seconds']:.0f} s)")
-    if patch.shape[0] == 0 or contrast["contrast"] < co.open_contrast:
+    if patch.shape[0] == 0 or contrast["contrast"] < co.open_gate:
         return None, evidence
     return open_start(patch, co.open_shell, co.open_hold, closed_surface(tr)), evidence

@@ -363,15 +363,19 @@ def tied_with_one_material(opened: ShapeTrainer, fit: float, carved: float, co,
                            evidence: dict) -> bool:
     """Whether the opened start's finished run ``opened`` (fit ``fit`` dB) ties with the carved
     one (``carved`` dB) as the simpler surface: it fits at most ``co.open_margin`` better and
-    at most ``co.open_tie`` worse, and its own worst-fitted patch is painted like the surface
-    around it (material contrast below ``co.open_contrast``, where the carved run's lid was
-    above it: :func:`voxnero.shape.proposals.worst_patch_evidence`). On a concave mirror the
-    photos hardly tell the lid from the cavity (the bowl started from its true surface fits
-    0.12 dB better than its lid, docs/STAGE1.md finding 42); a lid needs a second material
-    to explain them, the open surface does not. The measurement joins ``evidence["opened"]``.
+    at most ``co.open_tie`` worse, the carved run's worst patch was painted unlike the surface
+    around it (material contrast ``evidence["material"]`` at least ``co.open_contrast``: a
+    lid), and the opened run's own worst patch is painted like its surroundings (below it:
+    :func:`voxnero.shape.proposals.worst_patch_evidence`). On a concave mirror the photos
+    hardly tell the lid from the cavity (the bowl started from its true surface fits 0.12 dB
+    better than its lid, docs/STAGE1.md finding 42); a lid needs a second material to explain
+    them, the open surface does not. A solid object's worst patch is painted like its
+    surroundings, so its opened start never ties. The measurement joins ``evidence["opened"]``.
     """
     if not (co.open_tie > 0 and carved - co.open_tie <= fit <= carved + co.open_margin):
         return False
+    if evidence.get("material", {}).get("contrast", 0.0) < co.open_contrast:
+        return False  # the carved run needed no second material: nothing to simplify
     from voxnero.shape import proposals
 
     _, own = proposals.worst_patch_evidence(opened, co)
@@ -386,10 +390,10 @@ def race(tr: ShapeTrainer) -> Path:
        ``grid.init_candidates`` (folders ``r<radius>``); another radius must beat
        ``init_radius``'s fit by ``grid.init_margin`` dB to replace it. With a coarse stage its
        carved start comes first (folder ``coarse``); with ``coarse.open_worst`` its opened
-       shell (:mod:`voxnero.shape.proposals`, folder ``coarse_open``) follows it when the
-       carved run's worst-fitted patch is painted unlike the surface around it (material
-       contrast ≥ ``coarse.open_contrast``: a lid), and is kept if it fits
-       ``coarse.open_margin`` dB better *and* its mesh has the carved run's genus.
+       shell (:mod:`voxnero.shape.proposals`, folder ``coarse_open``) follows it (when the
+       carved run's worst-fitted patch's material contrast is at least ``coarse.open_gate``),
+       and is kept if it fits ``coarse.open_margin`` dB better *and* its mesh has the carved
+       run's genus, or if it ties (:func:`tied_with_one_material`).
     2. Initial roughness: each of ``light.init_roughness_candidates`` from the kept radius
        (folders ``r<radius>_rough<value>``); it replaces the kept start if it fits better.
 
@@ -495,8 +499,8 @@ def race(tr: ShapeTrainer) -> Path:
                 tr.log("[shape] no opened start: " + (
                     "no worst-fitted patch" if not proposal["patch_cubes"] else
                     f"the worst-fitted patch is painted like the surface around it (material "
-                    f"contrast {proposal['material']['contrast']:.2f} < {co.open_contrast:g}):"
-                    " a surface of the object, not a lid"))
+                    f"contrast {proposal['material']['contrast']:.2f} < coarse.open_gate "
+                    f"{co.open_gate:g})"))
         judge(fit)
         if radius is None and opening and edit is not None:
             fit = start(None, None, len(runs) + 1, n, edit)
