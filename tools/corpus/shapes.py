@@ -347,7 +347,7 @@ def ladle() -> SDF:
     upwards, and a handle 0.07 wide rising from its rim (a shallow concavity, genus 0)."""
     dish = intersect(lambda p: np.abs(np.linalg.norm(p - np.array([0.0, 0.0, 0.45]), axis=1)
                                       - 0.7) - 0.025,
-                     lambda p: p[:, 2] + 0.0)
+                     lambda p: p[:, 2])
     handle = capsule((0.52, 0.0, -0.02), (0.95, 0.0, 0.5), 0.035)
     return transformed(union(dish, handle), rotation("z", 30.0), offset=(-0.15, 0.0, -0.13))
 
