@@ -26,6 +26,7 @@ from voxnero.config import (
     available_presets,
     check_numbers,
     from_dict,
+    load_preset,
     parse_overrides,
     resolve,
     save_resolved,
@@ -88,6 +89,39 @@ def test_resolve_from_file_and_save(tmp_path):
     back = yaml.safe_load(out.read_text())["shape"]
     assert back == to_dict(c)
     assert from_dict(Outer, back) == c  # the saved config reproduces the run's config
+
+
+def test_base_preset_is_merged_under_the_file(tmp_path):
+    """``base: NAME`` loads NAME first; the file's keys win, the base's others stay, nested."""
+    (tmp_path / "b.yaml").write_text(yaml.safe_dump(
+        {"shape": {"iters": 3, "inner": {"res": 8, "lr": 0.25}}, "material": {"x": 1}}))
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump({"base": "b.yaml", "shape": {"inner": {"res": 4}}}))
+    raw = load_preset(str(tmp_path / "c.yaml"))
+    assert raw == {"shape": {"iters": 3, "inner": {"res": 4, "lr": 0.25}}, "material": {"x": 1}}
+    c = resolve(Outer, "shape", str(tmp_path / "c.yaml"), ["iters=5"])
+    assert (c.iters, c.inner.res, c.inner.lr) == (5, 4, 0.25)
+
+
+def test_quality_stage_1_is_standard():
+    """``quality`` names ``standard`` as its base and changes no stage-1 setting (finding 59)."""
+    from voxnero.material.config import MaterialConfig
+    from voxnero.shape.config import ShapeConfig
+
+    assert resolve(ShapeConfig, "shape", "quality", []) == resolve(ShapeConfig, "shape", "standard", [])
+    q, s = (resolve(MaterialConfig, "material", p, []) for p in ("quality", "standard"))
+    assert q.texture_size > s.texture_size
+
+
+@pytest.mark.parametrize("files, words", [
+    ({"a.yaml": {"base": "b.yaml"}, "b.yaml": {"base": "a.yaml"}}, "in a loop"),
+    ({"a.yaml": {"base": "a.yaml"}}, "in a loop"),
+    ({"a.yaml": {"base": 3}}, "must name a preset"),
+    ({"a.yaml": {"base": "no_such_preset"}}, "not found")])
+def test_bad_base_is_refused_with_the_file(tmp_path, files, words):
+    for name, doc in files.items():
+        (tmp_path / name).write_text(yaml.safe_dump(doc))
+    with pytest.raises(ConfigError, match=words):
+        load_preset(str(tmp_path / "a.yaml"))
 
 
 def test_missing_preset_lists_available():

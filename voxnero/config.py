@@ -40,11 +40,15 @@ def available_presets() -> list[str]:
     return sorted(p.stem for p in CONFIG_DIR.glob("*.yaml"))
 
 
-def load_preset(name_or_path: str) -> dict[str, Any]:
+def load_preset(name_or_path: str, _seen: tuple[str, ...] = ()) -> dict[str, Any]:
     """Load a preset by name (``voxnero/configs/<name>.yaml``) or by path to a YAML file.
 
+    A preset may start from another: a top-level ``base: NAME`` (a preset name or path) loads
+    that one first and merges this file's sections over it (:func:`deep_merge`), so a preset
+    lists only what it changes from its base and follows the base when the base is retuned.
+
     Returns:
-        The raw mapping of sections.
+        The raw mapping of sections, bases merged (``base`` itself removed).
     """
     path = Path(name_or_path)
     if not path.suffix:
@@ -58,7 +62,21 @@ def load_preset(name_or_path: str) -> dict[str, Any]:
         raise ConfigError(f"invalid YAML: {e}", path=path) from None
     if not isinstance(data, dict):
         raise ConfigError("a preset must be a mapping of sections", path=path)
-    return data
+    base = data.pop("base", None)
+    if base is None:
+        return data
+    if not isinstance(base, str) or not base:
+        raise ConfigError(f"'base' must name a preset, not {base!r}", path=path,
+                          fix=f"write e.g. base: standard (one of {available_presets()})")
+    key = str(path.resolve())
+    if key in _seen:
+        raise ConfigError(f"presets name each other as base in a loop: {' -> '.join(_seen + (key,))}",
+                          path=path, fix="remove one of the 'base' lines")
+    if not Path(base).suffix and Path(base).name == base:
+        parent = base  # a preset name
+    else:
+        parent = str((path.parent / base) if not Path(base).is_absolute() else Path(base))
+    return deep_merge(load_preset(parent, _seen + (key,)), data)
 
 
 def parse_overrides(items: list[str], default_section: str | None,
