@@ -1,7 +1,8 @@
 """Configuration: a dataclass per component, YAML presets, ``key=value`` overrides.
 
 A preset file (``voxnero/configs/<name>.yaml``, package data) is a mapping of sections, one
-per command stage (``shape:``, ``material:``, ``synth:`` ...). Each section is parsed into that
+per command stage (``shape:``, ``material:``, ``synth:`` ...), optionally over another preset it
+names as ``base:`` (:func:`load_preset`). Each section is parsed into that
 stage's dataclass with :func:`from_dict`, which rejects unknown keys and checks every number
 (:func:`check_numbers`: finite, and inside the class's ``RANGES`` table) before the class's own
 ``validate()``; a command resolves its config before it reads any data, so a bad setting stops
