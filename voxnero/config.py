@@ -73,10 +73,8 @@ def load_preset(name_or_path: str, _seen: tuple[str, ...] = ()) -> dict[str, Any
     if key in _seen:
         raise ConfigError(f"presets name each other as base in a loop: {' -> '.join(_seen + (key,))}",
                           path=path, fix="remove one of the 'base' lines")
-    if not Path(base).suffix and Path(base).name == base:
-        parent = base  # a preset name
-    else:
-        parent = str((path.parent / base) if not Path(base).is_absolute() else Path(base))
+    # a bare name is a shipped preset; a path is read relative to this file (an absolute one as is)
+    parent = base if not Path(base).suffix and Path(base).name == base else str(path.parent / base)
     return deep_merge(load_preset(parent, _seen + (key,)), data)
 
 
